@@ -1,0 +1,3 @@
+"""hpcmpm: MPI-distributed Material Point Method with peridynamics."""
+
+__version__ = "0.1.0"

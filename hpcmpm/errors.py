@@ -1,0 +1,42 @@
+"""One exception family; the CLI turns each into one line and an exit code."""
+
+
+class HpcmpmError(Exception):
+    """Base of every error hpcmpm reports to a user."""
+
+    exit_code = 1
+
+
+class SceneError(HpcmpmError):
+    """A scene file is invalid; ``problems`` holds one line per problem."""
+
+    exit_code = 2
+
+    def __init__(self, problems: list[str] | str):
+        if isinstance(problems, str):
+            problems = [problems]
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+class InstabilityError(HpcmpmError):
+    """The simulation blew up (non-finite value or det F <= 0)."""
+
+    exit_code = 3
+
+
+class CheckpointError(HpcmpmError):
+    """A checkpoint cannot be written or read back."""
+
+    exit_code = 4
+
+
+class OutputExistsError(HpcmpmError):
+    """An output folder already holds another run's output."""
+
+    exit_code = 5
+
+
+# Exit code for a run that stopped on SIGTERM/SIGUSR1 after writing a checkpoint.
+# Job scripts requeue on this code (jobs/*.tmpl).
+EXIT_CHECKPOINTED_ON_SIGNAL = 75

@@ -1,0 +1,229 @@
+"""Particle and grid storage.
+
+`ParticleSet` is a structure of arrays with spare capacity: fields are named, allocated on
+demand from what the scene's materials and features declare, and particles are added, removed
+and reordered without reallocating every array every step. `GridBlock` is the rank-local dense
+block of grid nodes (owned nodes plus ghost layers) that covers this rank's particles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Shape kinds of a per-particle field: the trailing shape follows from the dimension.
+SCALAR, VECTOR, TENSOR = "scalar", "vector", "tensor"
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """How a per-particle field is stored: `kind` in {scalar, vector, tensor}, dtype, and the
+    value a new particle gets when nobody provides one (`"identity"` for tensors such as F)."""
+
+    kind: str = SCALAR
+    dtype: str = "f8"
+    fill: float | str = 0.0
+
+    def trailing_shape(self, dim: int) -> tuple[int, ...]:
+        return {SCALAR: (), VECTOR: (dim,), TENSOR: (dim, dim)}[self.kind]
+
+
+# Fields every MPM particle has. `group` is the index of the particle's material in the scene;
+# `tau` is the Kirchhoff stress (P F^T) the material kernel writes for P2G.
+CORE_FIELDS: dict[str, FieldSpec] = {
+    "id": FieldSpec(SCALAR, "i8", -1),
+    "group": FieldSpec(SCALAR, "i4", 0),
+    "x": FieldSpec(VECTOR),
+    "v": FieldSpec(VECTOR),
+    "mass": FieldSpec(SCALAR),
+    "vol0": FieldSpec(SCALAR),
+    "F": FieldSpec(TENSOR, "f8", "identity"),
+    "tau": FieldSpec(TENSOR),
+}
+
+
+class ParticleSet:
+    """Structure of arrays of particles.
+
+    ``p["x"]`` is a view of the first ``p.n`` rows of the backing array, so kernels see
+    contiguous float64 arrays of exactly the live particles. Capacity grows geometrically.
+    """
+
+    def __init__(self, dim: int, specs: dict[str, FieldSpec] | None = None, capacity: int = 0):
+        self.dim = dim
+        self.n = 0
+        self.capacity = 0
+        self.specs: dict[str, FieldSpec] = {}
+        self._data: dict[str, np.ndarray] = {}
+        self._scratch: dict[str, np.ndarray] = {}
+        for name, spec in {**CORE_FIELDS, **(specs or {})}.items():
+            self.add_field(name, spec)
+        self._reserve(max(capacity, 16))
+
+    # -- fields -----------------------------------------------------------------------------
+    def add_field(self, name: str, spec: FieldSpec) -> None:
+        """Declare a field; existing particles get the spec's fill value. Idempotent."""
+        if name in self.specs:
+            if self.specs[name] != spec:
+                raise ValueError(f"field {name!r} already declared as {self.specs[name]}")
+            return
+        self.specs[name] = spec
+        arr = np.empty((self.capacity,) + spec.trailing_shape(self.dim), dtype=spec.dtype)
+        self._fill(arr, spec)
+        self._data[name] = arr
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.specs
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._data[name][: self.n]
+
+    def field_names(self) -> list[str]:
+        return list(self.specs)
+
+    def nbytes_per_particle(self) -> int:
+        return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in self._data.values())
+
+    def _fill(self, arr: np.ndarray, spec: FieldSpec) -> None:
+        if spec.fill == "identity":
+            arr[...] = 0.0
+            for a in range(self.dim):
+                arr[..., a, a] = 1.0
+        else:
+            arr[...] = spec.fill
+
+    # -- size -------------------------------------------------------------------------------
+    def _reserve(self, needed: int) -> None:
+        if needed <= self.capacity:
+            return
+        new_cap = max(needed, int(self.capacity * 1.5) + 16)
+        for name, spec in self.specs.items():
+            old = self._data.get(name)
+            arr = np.empty((new_cap,) + spec.trailing_shape(self.dim), dtype=spec.dtype)
+            self._fill(arr[self.n :], spec)
+            if old is not None and self.n:
+                arr[: self.n] = old[: self.n]
+            self._data[name] = arr
+        self._scratch.clear()
+        self.capacity = new_cap
+
+    def append(self, values: dict[str, np.ndarray]) -> None:
+        """Add particles. ``values`` maps field names to arrays with equal first dimension;
+        fields not given take their fill value. Unknown names are an error."""
+        unknown = set(values) - set(self.specs)
+        if unknown:
+            raise KeyError(f"unknown particle fields {sorted(unknown)}")
+        if not values:
+            return
+        m = len(next(iter(values.values())))
+        start = self.n
+        self._reserve(self.n + m)
+        for name, spec in self.specs.items():
+            dst = self._data[name][start : start + m]
+            if name in values:
+                dst[...] = values[name]
+            else:
+                self._fill(dst, spec)
+        self.n += m
+
+    def keep(self, index: np.ndarray) -> None:
+        """Keep only the particles at ``index`` (a boolean mask or integer index), in that order."""
+        index = np.asarray(index)
+        if index.dtype == bool:
+            index = np.flatnonzero(index)
+        self.permute(index)
+
+    def permute(self, order: np.ndarray) -> None:
+        """Reorder (and possibly shrink to) ``order``, an integer index into the live particles.
+
+        Uses one scratch buffer per field that is swapped with the live array, so a sort does
+        not allocate after the first call."""
+        m = len(order)
+        for name in self.specs:
+            data = self._data[name]
+            buf = self._scratch.get(name)
+            if buf is None or buf.shape != data.shape:
+                buf = np.empty_like(data)
+            np.take(data[: self.n], order, axis=0, out=buf[:m])
+            self._data[name], self._scratch[name] = buf, data
+        for name, spec in self.specs.items():
+            self._fill(self._data[name][m : self.n], spec)
+        self.n = m
+
+    def take(self, index: np.ndarray, names: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Copies of the given particles' fields (for migration, halos and output)."""
+        names = self.field_names() if names is None else names
+        return {name: self[name][index] for name in names}
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Copies of every live field."""
+        return {name: self[name].copy() for name in self.specs}
+
+
+class GridBlock:
+    """A dense block of grid nodes on one rank.
+
+    Node ``i`` (a global integer index per axis) sits at ``domain_lo + i * dx``. The block holds
+    nodes ``origin <= i < origin + shape``; ``lo``/``hi`` are the sub-box in use this step (the
+    allocation may be larger so it is reused while the particles move). Fields are named like
+    particle fields: ``mass`` has shape ``shape``, vector fields ``shape + (dim,)``.
+    """
+
+    def __init__(self, dim: int, dx: float, domain_lo: np.ndarray, margin: int = 4):
+        self.dim = dim
+        self.dx = float(dx)
+        self.domain_lo = np.asarray(domain_lo, dtype=np.float64)
+        self.margin = margin
+        self.origin = np.zeros(dim, dtype=np.int64)
+        self.shape: tuple[int, ...] = (0,) * dim
+        self.lo = np.zeros(dim, dtype=np.int64)
+        self.hi = np.zeros(dim, dtype=np.int64)
+        self.kinds: dict[str, str] = {}
+        self.fields: dict[str, np.ndarray] = {}
+        self.reallocations = 0
+
+    def declare(self, name: str, kind: str = SCALAR) -> None:
+        """Declare a grid field (scalar or vector); allocated at the next `fit`."""
+        if name not in self.kinds:
+            self.kinds[name] = kind
+            self.fields[name] = self._alloc(kind)
+
+    def _alloc(self, kind: str) -> np.ndarray:
+        trailing = (self.dim,) if kind == VECTOR else ()
+        return np.zeros(self.shape + trailing, dtype=np.float64)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.fields[name]
+
+    def fit(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Make the block hold nodes ``lo <= i < hi`` and zero every field.
+
+        Reallocates (with ``margin`` spare nodes per side) only when the box does not fit."""
+        lo = np.asarray(lo, dtype=np.int64)
+        hi = np.maximum(np.asarray(hi, dtype=np.int64), lo)
+        end = self.origin + np.asarray(self.shape, dtype=np.int64)
+        if np.any(lo < self.origin) or np.any(hi > end) or self._too_big(lo, hi):
+            self.origin = lo - self.margin
+            self.shape = tuple(int(s) for s in (hi - lo + 2 * self.margin))
+            for name, kind in self.kinds.items():
+                self.fields[name] = self._alloc(kind)
+            self.reallocations += 1
+        else:
+            for arr in self.fields.values():
+                arr.fill(0.0)
+        self.lo, self.hi = lo, hi
+
+    def _too_big(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        # Shrink when the allocation is more than 4x the need, so a block that once covered a
+        # spread-out body does not keep zeroing empty space forever.
+        need = np.prod((hi - lo + 2 * self.margin).astype(float))
+        return np.prod(np.asarray(self.shape, dtype=float)) > 4.0 * max(need, 1.0)
+
+    def node_positions(self) -> list[np.ndarray]:
+        """1D coordinate arrays per axis for the allocated nodes."""
+        return [self.domain_lo[a] + (self.origin[a] + np.arange(self.shape[a])) * self.dx
+                for a in range(self.dim)]
+
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in self.fields.values())
