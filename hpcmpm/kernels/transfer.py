@@ -1,0 +1,351 @@
+"""Particle-to-grid and grid-to-particle transfers: PIC, FLIP/PIC blend, APIC, MLS-MPM.
+
+One scatter and one gather kernel per dimension; the scheme is an integer argument that is
+constant for a whole call, so the branches inside the loop are perfectly predicted.
+
+- PIC / FLIP (000 §3.4): momentum ``w m v``; FLIP blends ``v_p <- alpha (v_p + sum w dv_i)
+  + (1 - alpha) sum w v_i``.
+- APIC (Jiang 2015 eq. 10-13): momentum ``w m (v_p + C_p (x_i - x_p))``, ``C_p = B_p D^-1``.
+- MLS-MPM (Hu 2018 eq. 17-18; 003 §3.2): as APIC, with the stress entering the same affine
+  term, ``-dt V0 D^-1 tau (x_i - x_p)``, and ``grad v = C``.
+
+Non-MLS schemes use the gradient form of the internal force (000 eq. 3.1):
+``f_i = -sum_p V0_p tau_p grad w_ip`` with tau the Kirchhoff stress, and update
+``F <- (I + dt grad v) F`` with ``grad v = sum_i v_i (grad w_ip)^T`` (000 eq. 3.7).
+
+When ``split_force`` is true the impulse ``dt f_i`` goes to its own grid array (FLIP needs the
+pre-force velocity; an implicit solve needs the force alone); otherwise it is added to the
+momentum, which saves one grid write per node.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .shape import stencil_base, weights_1d
+
+PIC, FLIP, APIC, MLS = 0, 1, 2, 3
+SCHEMES = {"pic": PIC, "flip": FLIP, "apic": APIC, "mls": MLS}
+
+
+@njit(cache=True)
+def scatter_2d(x, v, C, mass, vol0, tau, scheme, order, dinv_factor, dx, domain_lo, origin,
+               dt, split_force, grid_mass, grid_momentum, grid_impulse):
+    """P2G in 2D: mass, momentum and the stress impulse ``dt f`` onto the block.
+
+    x, v (n, 2); C, tau (n, 2, 2) (C unused for PIC/FLIP); mass, vol0 (n,);
+    grid_mass (nx, ny); grid_momentum, grid_impulse (nx, ny, 2), accumulated in place."""
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    w = np.empty((2, 4))
+    dw = np.empty((2, 4))
+    affine = scheme >= APIC
+    mls = scheme == MLS
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
+        xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        weights_1d(xi0, b0, order, inv_dx, w, dw, 0)
+        weights_1d(xi1, b1, order, inv_dx, w, dw, 1)
+        m = mass[p]
+        vd = dt * vol0[p]
+        t00, t01, t10, t11 = tau[p, 0, 0], tau[p, 0, 1], tau[p, 1, 0], tau[p, 1, 1]
+        mv0, mv1 = m * v[p, 0], m * v[p, 1]
+        a00 = a01 = a10 = a11 = 0.0
+        if affine:
+            a00, a01, a10, a11 = m * C[p, 0, 0], m * C[p, 0, 1], m * C[p, 1, 0], m * C[p, 1, 1]
+        # MLS stress as an affine term (Hu 2018 eq. 18); k = -dt V0 D^-1.
+        k = -vd * dinv
+        s00, s01, s10, s11 = k * t00, k * t01, k * t10, k * t11
+        if mls and not split_force:
+            a00 += s00
+            a01 += s01
+            a10 += s10
+            a11 += s11
+        l0 = b0 - origin[0]
+        l1 = b1 - origin[1]
+        for i in range(s):
+            d0 = (b0 + i - xi0) * dx
+            for j in range(s):
+                d1 = (b1 + j - xi1) * dx
+                wij = w[0, i] * w[1, j]
+                n0, n1 = l0 + i, l1 + j
+                grid_mass[n0, n1] += wij * m
+                grid_momentum[n0, n1, 0] += wij * (mv0 + a00 * d0 + a01 * d1)
+                grid_momentum[n0, n1, 1] += wij * (mv1 + a10 * d0 + a11 * d1)
+                if mls:
+                    if split_force:
+                        grid_impulse[n0, n1, 0] += wij * (s00 * d0 + s01 * d1)
+                        grid_impulse[n0, n1, 1] += wij * (s10 * d0 + s11 * d1)
+                else:
+                    g0 = dw[0, i] * w[1, j]
+                    g1 = w[0, i] * dw[1, j]
+                    f0 = -vd * (t00 * g0 + t01 * g1)
+                    f1 = -vd * (t10 * g0 + t11 * g1)
+                    if split_force:
+                        grid_impulse[n0, n1, 0] += f0
+                        grid_impulse[n0, n1, 1] += f1
+                    else:
+                        grid_momentum[n0, n1, 0] += f0
+                        grid_momentum[n0, n1, 1] += f1
+
+
+@njit(cache=True)
+def scatter_3d(x, v, C, mass, vol0, tau, scheme, order, dinv_factor, dx, domain_lo, origin,
+               dt, split_force, grid_mass, grid_momentum, grid_impulse):
+    """P2G in 3D; see `scatter_2d` (same algorithm, arrays with a third axis)."""
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    w = np.empty((3, 4))
+    dw = np.empty((3, 4))
+    affine = scheme >= APIC
+    mls = scheme == MLS
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
+        xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
+        xi2 = (x[p, 2] - domain_lo[2]) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        b2 = stencil_base(xi2, order)
+        weights_1d(xi0, b0, order, inv_dx, w, dw, 0)
+        weights_1d(xi1, b1, order, inv_dx, w, dw, 1)
+        weights_1d(xi2, b2, order, inv_dx, w, dw, 2)
+        m = mass[p]
+        vd = dt * vol0[p]
+        t00, t01, t02 = tau[p, 0, 0], tau[p, 0, 1], tau[p, 0, 2]
+        t10, t11, t12 = tau[p, 1, 0], tau[p, 1, 1], tau[p, 1, 2]
+        t20, t21, t22 = tau[p, 2, 0], tau[p, 2, 1], tau[p, 2, 2]
+        mv0, mv1, mv2 = m * v[p, 0], m * v[p, 1], m * v[p, 2]
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+        if affine:
+            a00, a01, a02 = m * C[p, 0, 0], m * C[p, 0, 1], m * C[p, 0, 2]
+            a10, a11, a12 = m * C[p, 1, 0], m * C[p, 1, 1], m * C[p, 1, 2]
+            a20, a21, a22 = m * C[p, 2, 0], m * C[p, 2, 1], m * C[p, 2, 2]
+        k = -vd * dinv
+        s00, s01, s02 = k * t00, k * t01, k * t02
+        s10, s11, s12 = k * t10, k * t11, k * t12
+        s20, s21, s22 = k * t20, k * t21, k * t22
+        if mls and not split_force:
+            a00 += s00
+            a01 += s01
+            a02 += s02
+            a10 += s10
+            a11 += s11
+            a12 += s12
+            a20 += s20
+            a21 += s21
+            a22 += s22
+        l0 = b0 - origin[0]
+        l1 = b1 - origin[1]
+        l2 = b2 - origin[2]
+        for i in range(s):
+            d0 = (b0 + i - xi0) * dx
+            for j in range(s):
+                d1 = (b1 + j - xi1) * dx
+                wij = w[0, i] * w[1, j]
+                for kk in range(s):
+                    d2 = (b2 + kk - xi2) * dx
+                    wijk = wij * w[2, kk]
+                    n0, n1, n2 = l0 + i, l1 + j, l2 + kk
+                    grid_mass[n0, n1, n2] += wijk * m
+                    grid_momentum[n0, n1, n2, 0] += wijk * (mv0 + a00 * d0 + a01 * d1 + a02 * d2)
+                    grid_momentum[n0, n1, n2, 1] += wijk * (mv1 + a10 * d0 + a11 * d1 + a12 * d2)
+                    grid_momentum[n0, n1, n2, 2] += wijk * (mv2 + a20 * d0 + a21 * d1 + a22 * d2)
+                    if mls:
+                        if split_force:
+                            grid_impulse[n0, n1, n2, 0] += wijk * (s00 * d0 + s01 * d1 + s02 * d2)
+                            grid_impulse[n0, n1, n2, 1] += wijk * (s10 * d0 + s11 * d1 + s12 * d2)
+                            grid_impulse[n0, n1, n2, 2] += wijk * (s20 * d0 + s21 * d1 + s22 * d2)
+                    else:
+                        g0 = dw[0, i] * w[1, j] * w[2, kk]
+                        g1 = w[0, i] * dw[1, j] * w[2, kk]
+                        g2 = wij * dw[2, kk]
+                        f0 = -vd * (t00 * g0 + t01 * g1 + t02 * g2)
+                        f1 = -vd * (t10 * g0 + t11 * g1 + t12 * g2)
+                        f2 = -vd * (t20 * g0 + t21 * g1 + t22 * g2)
+                        if split_force:
+                            grid_impulse[n0, n1, n2, 0] += f0
+                            grid_impulse[n0, n1, n2, 1] += f1
+                            grid_impulse[n0, n1, n2, 2] += f2
+                        else:
+                            grid_momentum[n0, n1, n2, 0] += f0
+                            grid_momentum[n0, n1, n2, 1] += f1
+                            grid_momentum[n0, n1, n2, 2] += f2
+
+
+@njit(cache=True)
+def gather_2d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt, flip_alpha,
+              grid_velocity, grid_velocity_old):
+    """G2P in 2D: new v (and C), F <- (I + dt grad v) F, x <- x + dt v_pic. In place.
+
+    grid_velocity_old is read only for FLIP."""
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    w = np.empty((2, 4))
+    dw = np.empty((2, 4))
+    affine = scheme >= APIC
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
+        xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        weights_1d(xi0, b0, order, inv_dx, w, dw, 0)
+        weights_1d(xi1, b1, order, inv_dx, w, dw, 1)
+        l0 = b0 - origin[0]
+        l1 = b1 - origin[1]
+        u0 = u1 = 0.0
+        du0 = du1 = 0.0
+        b00 = b01 = b10 = b11 = 0.0
+        g00 = g01 = g10 = g11 = 0.0
+        for i in range(s):
+            d0 = (b0 + i - xi0) * dx
+            for j in range(s):
+                d1 = (b1 + j - xi1) * dx
+                wij = w[0, i] * w[1, j]
+                n0, n1 = l0 + i, l1 + j
+                vi0 = grid_velocity[n0, n1, 0]
+                vi1 = grid_velocity[n0, n1, 1]
+                u0 += wij * vi0
+                u1 += wij * vi1
+                if affine:
+                    b00 += wij * vi0 * d0
+                    b01 += wij * vi0 * d1
+                    b10 += wij * vi1 * d0
+                    b11 += wij * vi1 * d1
+                if scheme != MLS:
+                    gw0 = dw[0, i] * w[1, j]
+                    gw1 = w[0, i] * dw[1, j]
+                    g00 += vi0 * gw0
+                    g01 += vi0 * gw1
+                    g10 += vi1 * gw0
+                    g11 += vi1 * gw1
+                if scheme == FLIP:
+                    du0 += wij * (vi0 - grid_velocity_old[n0, n1, 0])
+                    du1 += wij * (vi1 - grid_velocity_old[n0, n1, 1])
+        if affine:
+            b00 *= dinv
+            b01 *= dinv
+            b10 *= dinv
+            b11 *= dinv
+            C[p, 0, 0], C[p, 0, 1], C[p, 1, 0], C[p, 1, 1] = b00, b01, b10, b11
+        if scheme == MLS:
+            g00, g01, g10, g11 = b00, b01, b10, b11
+        if scheme == FLIP:
+            v[p, 0] = flip_alpha * (v[p, 0] + du0) + (1.0 - flip_alpha) * u0
+            v[p, 1] = flip_alpha * (v[p, 1] + du1) + (1.0 - flip_alpha) * u1
+        else:
+            v[p, 0] = u0
+            v[p, 1] = u1
+        x[p, 0] += dt * u0
+        x[p, 1] += dt * u1
+        f00, f01, f10, f11 = F[p, 0, 0], F[p, 0, 1], F[p, 1, 0], F[p, 1, 1]
+        F[p, 0, 0] = f00 + dt * (g00 * f00 + g01 * f10)
+        F[p, 0, 1] = f01 + dt * (g00 * f01 + g01 * f11)
+        F[p, 1, 0] = f10 + dt * (g10 * f00 + g11 * f10)
+        F[p, 1, 1] = f11 + dt * (g10 * f01 + g11 * f11)
+
+
+@njit(cache=True)
+def gather_3d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt, flip_alpha,
+              grid_velocity, grid_velocity_old):
+    """G2P in 3D; see `gather_2d`."""
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    w = np.empty((3, 4))
+    dw = np.empty((3, 4))
+    affine = scheme >= APIC
+    g = np.empty((3, 3))  # allocated once per call, reused for every particle
+    b = np.empty((3, 3))
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
+        xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
+        xi2 = (x[p, 2] - domain_lo[2]) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        b2 = stencil_base(xi2, order)
+        weights_1d(xi0, b0, order, inv_dx, w, dw, 0)
+        weights_1d(xi1, b1, order, inv_dx, w, dw, 1)
+        weights_1d(xi2, b2, order, inv_dx, w, dw, 2)
+        l0 = b0 - origin[0]
+        l1 = b1 - origin[1]
+        l2 = b2 - origin[2]
+        u0 = u1 = u2 = 0.0
+        du0 = du1 = du2 = 0.0
+        g[:, :] = 0.0
+        b[:, :] = 0.0
+        for i in range(s):
+            d0 = (b0 + i - xi0) * dx
+            for j in range(s):
+                d1 = (b1 + j - xi1) * dx
+                wij = w[0, i] * w[1, j]
+                for kk in range(s):
+                    d2 = (b2 + kk - xi2) * dx
+                    wijk = wij * w[2, kk]
+                    n0, n1, n2 = l0 + i, l1 + j, l2 + kk
+                    vi0 = grid_velocity[n0, n1, n2, 0]
+                    vi1 = grid_velocity[n0, n1, n2, 1]
+                    vi2 = grid_velocity[n0, n1, n2, 2]
+                    u0 += wijk * vi0
+                    u1 += wijk * vi1
+                    u2 += wijk * vi2
+                    if affine:
+                        wv0, wv1, wv2 = wijk * vi0, wijk * vi1, wijk * vi2
+                        b[0, 0] += wv0 * d0
+                        b[0, 1] += wv0 * d1
+                        b[0, 2] += wv0 * d2
+                        b[1, 0] += wv1 * d0
+                        b[1, 1] += wv1 * d1
+                        b[1, 2] += wv1 * d2
+                        b[2, 0] += wv2 * d0
+                        b[2, 1] += wv2 * d1
+                        b[2, 2] += wv2 * d2
+                    if scheme != MLS:
+                        gw0 = dw[0, i] * w[1, j] * w[2, kk]
+                        gw1 = w[0, i] * dw[1, j] * w[2, kk]
+                        gw2 = wij * dw[2, kk]
+                        g[0, 0] += vi0 * gw0
+                        g[0, 1] += vi0 * gw1
+                        g[0, 2] += vi0 * gw2
+                        g[1, 0] += vi1 * gw0
+                        g[1, 1] += vi1 * gw1
+                        g[1, 2] += vi1 * gw2
+                        g[2, 0] += vi2 * gw0
+                        g[2, 1] += vi2 * gw1
+                        g[2, 2] += vi2 * gw2
+                    if scheme == FLIP:
+                        du0 += wijk * (vi0 - grid_velocity_old[n0, n1, n2, 0])
+                        du1 += wijk * (vi1 - grid_velocity_old[n0, n1, n2, 1])
+                        du2 += wijk * (vi2 - grid_velocity_old[n0, n1, n2, 2])
+        if affine:
+            for a in range(3):
+                for c in range(3):
+                    b[a, c] *= dinv
+                    C[p, a, c] = b[a, c]
+        if scheme == MLS:
+            g[:, :] = b[:, :]
+        if scheme == FLIP:
+            v[p, 0] = flip_alpha * (v[p, 0] + du0) + (1.0 - flip_alpha) * u0
+            v[p, 1] = flip_alpha * (v[p, 1] + du1) + (1.0 - flip_alpha) * u1
+            v[p, 2] = flip_alpha * (v[p, 2] + du2) + (1.0 - flip_alpha) * u2
+        else:
+            v[p, 0] = u0
+            v[p, 1] = u1
+            v[p, 2] = u2
+        x[p, 0] += dt * u0
+        x[p, 1] += dt * u1
+        x[p, 2] += dt * u2
+        for c in range(3):
+            f0, f1, f2 = F[p, 0, c], F[p, 1, c], F[p, 2, c]
+            F[p, 0, c] = f0 + dt * (g[0, 0] * f0 + g[0, 1] * f1 + g[0, 2] * f2)
+            F[p, 1, c] = f1 + dt * (g[1, 0] * f0 + g[1, 1] * f1 + g[1, 2] * f2)
+            F[p, 2, c] = f2 + dt * (g[2, 0] * f0 + g[2, 1] * f1 + g[2, 2] * f2)
+
+
+SCATTER = {2: scatter_2d, 3: scatter_3d}
+GATHER = {2: gather_2d, 3: gather_3d}

@@ -1,0 +1,227 @@
+"""The explicit MPM time step on a rank-local grid block.
+
+`Simulation.step` reads as the list of phases; each phase is a numba kernel over plain arrays,
+and the only inter-rank traffic is the `Domain` verbs between them. The run loop (time-step
+choice, output, checkpoints) lives in `hpcmpm.runner`.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from .boundaries import build_boundaries
+from .errors import InstabilityError
+from .kernels.grid import update_velocity
+from .kernels.particles import cell_sort_keys, momentum_and_kinetic_energy, scan_health
+from .kernels.shape import ORDERS, inverse_inertia_factor
+from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCHEMES
+from .materials import make_material
+from .state import SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock, ParticleSet
+
+log = logging.getLogger(__name__)
+
+# How many broken particles an instability report names.
+MAX_REPORTED = 8
+
+
+class Simulation:
+    """Particles, grid block, materials and boundaries of one rank, and the step over them."""
+
+    # Re-sort by cell at least this often even when no particle changed rank or group, so
+    # P2G/G2P keep walking the grid in memory order as particles drift.
+    sort_every = 1
+
+    def __init__(self, scene, domain, particles: ParticleSet | None = None):
+        self.scene = scene
+        self.domain = domain
+        self.dim = scene.dim
+        self.dx = float(scene.dx)
+        self.domain_lo = np.asarray(scene.domain_lo, dtype=np.float64)
+        self.order = ORDERS[scene.kernel]
+        self.scheme = SCHEMES[scene.transfer]
+        self.dinv_factor = inverse_inertia_factor(self.order)
+        self.flip_alpha = float(getattr(scene, "flip_alpha", 0.0))
+        # FLIP needs the pre-force grid velocity; every other scheme fuses the impulse into
+        # the momentum and saves a grid field.
+        self.split_force = self.scheme == FLIP
+        self.gravity = np.zeros(3)
+        self.gravity[: self.dim] = scene.gravity
+        self.materials = [make_material(spec, self.dim) for spec in scene.materials]
+        self.boundaries = build_boundaries(scene)
+        self.particles = particles if particles is not None else ParticleSet(
+            self.dim, self.particle_fields())
+        self.grid = GridBlock(self.dim, self.dx, self.domain_lo)
+        self._scattered = ["mass", "momentum"] + (["impulse"] if self.split_force else [])
+        self._gathered = ["velocity"] + (["velocity_old"] if self.scheme == FLIP else [])
+        for name in self._scattered + self._gathered:
+            self.grid.declare(name, SCALAR if name == "mass" else VECTOR)
+        self._dummy_vector = np.zeros((1,) * self.dim + (self.dim,))
+        self._dummy_C = np.zeros((1, self.dim, self.dim))
+        self._bad = np.empty(MAX_REPORTED, dtype=np.int64)
+        self._keys = np.empty(0, dtype=np.int64)
+        self._needs_sort = True
+        self.group_slices: list[tuple[int, int]] = []
+        self.time = 0.0
+        self.step_index = 0
+        from .timers import PhaseTimers
+
+        self.timers = PhaseTimers()
+
+    # -- set-up ----------------------------------------------------------------------------
+    def particle_fields(self) -> dict[str, FieldSpec]:
+        """Union of the fields the materials and the chosen features declare."""
+        specs: dict[str, FieldSpec] = {}
+        for material in self.materials:
+            specs.update(material.fields)
+        if self.scheme >= APIC:
+            specs["C"] = FieldSpec(TENSOR)
+        if self.scene.prescribed:
+            specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
+        return specs
+
+    # -- the step --------------------------------------------------------------------------
+    def step(self, dt: float) -> None:
+        """Advance by ``dt``: one explicit MPM step (000 §3.3, Fig. 3.1)."""
+        p, grid, domain, t = self.particles, self.grid, self.domain, self.timers
+        with t("sort"):
+            self.sort_if_needed()
+        with t("stress"):
+            self.update_stress(dt)  # plastic projection, then Kirchhoff stress per material
+        with t("p2g"):
+            grid.fit(*domain.grid_box(p, self.order))
+            self.scatter(dt)  # mass, momentum, dt f_i (000 eq. 3.1; Hu 2018 eq. 17)
+        with t("halo"):
+            domain.sum_ghosts_to_owners(grid, *self._scattered)
+        with t("grid"):
+            self.update_grid(dt)  # v_i = (p_i + dt f_i)/m_i + dt g, then boundaries
+        with t("halo"):
+            domain.fill_ghosts(grid, *self._gathered)
+        with t("g2p"):
+            self.gather(dt)  # v, C, F <- (I + dt grad v) F, x <- x + dt v
+        with t("migrate"):
+            n_before = p.n
+            sent = domain.migrate(p)
+            if sent or p.n != n_before:
+                self._needs_sort = True
+        self.time += dt
+        self.step_index += 1
+
+    def sort_if_needed(self) -> None:
+        """Sort particles by (material group, cell) so each material owns one contiguous
+        slice and P2G/G2P walk the grid in memory order."""
+        p = self.particles
+        if not self._needs_sort and self.step_index % self.sort_every:
+            return
+        if len(self._keys) < p.n:
+            self._keys = np.empty(p.capacity, dtype=np.int64)
+        keys = self._keys[: p.n]
+        cell_sort_keys(p["x"], p["group"], self.domain_lo, 1.0 / self.dx, keys)
+        order = np.argsort(keys, kind="stable")
+        p.permute(order)
+        bounds = np.searchsorted(p["group"], np.arange(len(self.materials) + 1))
+        self.group_slices = [(int(bounds[g]), int(bounds[g + 1]))
+                             for g in range(len(self.materials))]
+        self._needs_sort = False
+
+    def material_fields(self, g: int) -> dict[str, np.ndarray]:
+        start, stop = self.group_slices[g]
+        p = self.particles
+        return {name: p[name][start:stop] for name in p.field_names()}
+
+    def update_stress(self, dt: float) -> None:
+        for g, material in enumerate(self.materials):
+            start, stop = self.group_slices[g]
+            if stop > start:
+                material.update_stress(self.material_fields(g), dt)
+
+    def scatter(self, dt: float) -> None:
+        p, grid = self.particles, self.grid
+        impulse = grid["impulse"] if self.split_force else grid["momentum"]
+        SCATTER[self.dim](
+            p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p["mass"], p["vol0"],
+            p["tau"], self.scheme, self.order, self.dinv_factor, self.dx, self.domain_lo,
+            grid.origin, dt, self.split_force, grid["mass"], grid["momentum"], impulse)
+
+    def update_grid(self, dt: float) -> None:
+        grid = self.grid
+        d = self.dim
+        flip = self.scheme == FLIP
+        velocity = grid["velocity"]
+        update_velocity(
+            grid["mass"].reshape(-1), grid["momentum"].reshape(-1, d),
+            (grid["impulse"] if self.split_force else grid["momentum"]).reshape(-1, d),
+            self.split_force, self.gravity[:d], dt, velocity.reshape(-1, d),
+            (grid["velocity_old"] if flip else velocity).reshape(-1, d), flip)
+        for condition in self.boundaries:
+            condition.apply(velocity, grid.origin, self.dx, self.domain_lo, self.time, dt,
+                            grid["mass"])
+
+    def gather(self, dt: float) -> None:
+        p, grid = self.particles, self.grid
+        old = grid["velocity_old"] if self.scheme == FLIP else self._dummy_vector
+        GATHER[self.dim](
+            p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p["F"], self.scheme,
+            self.order, self.dinv_factor, self.dx, self.domain_lo, grid.origin, dt,
+            self.flip_alpha, grid["velocity"], old)
+
+    # -- time step and health --------------------------------------------------------------
+    def max_wave_speed(self) -> float:
+        return max((m.wave_speed() for m in self.materials), default=0.0)
+
+    def stable_dt(self) -> float:
+        """CFL time step ``cfl dx / (c_max + |v|_max)`` agreed by all ranks; raises
+        `InstabilityError` on every rank when any particle is broken."""
+        speed = self.check_health()
+        c = self.max_wave_speed()
+        return self.scene.cfl * self.dx / (c + speed)
+
+    def check_health(self) -> float:
+        """Global max particle speed; raises `InstabilityError` (same message on every rank)
+        when a particle holds a non-finite value or det F <= 0."""
+        p = self.particles
+        speed, nbad = scan_health(p["x"], p["v"], p["F"], self._bad, MAX_REPORTED)
+        total_bad = self.domain.sum(int(nbad))
+        if total_bad:
+            self.raise_instability(int(nbad), total_bad)
+        return self.domain.max(speed)
+
+    def raise_instability(self, nbad_local: int, total_bad: int) -> None:
+        p = self.particles
+        idx = self._bad[: min(nbad_local, MAX_REPORTED)]
+        mine = [(int(p["id"][i]), self.scene.materials[int(p["group"][i])].name) for i in idx]
+        reports = [r for rank_list in self.domain.allgather(mine) for r in rank_list]
+        reports.sort()
+        ids = ", ".join(str(i) for i, _ in reports[:MAX_REPORTED])
+        names = sorted({name for _, name in reports})
+        more = f" (and {total_bad - len(reports[:MAX_REPORTED])} more)" if total_bad > MAX_REPORTED else ""
+        raise InstabilityError(
+            f"numerical instability at step {self.step_index}, t={self.time:.6g}: "
+            f"{total_bad} particle(s) with a non-finite value or det F <= 0, ids {ids}{more}, "
+            f"material {', '.join(repr(n) for n in names)}. "
+            f"Hint: lower simulation.cfl (now {self.scene.cfl}) or a fixed simulation.dt, "
+            f"or refine simulation.dx (now {self.dx}).")
+
+    # -- diagnostics -----------------------------------------------------------------------
+    def diagnostics(self) -> dict[str, float]:
+        """Global mass, linear/angular momentum, kinetic and elastic energy."""
+        p = self.particles
+        if self.group_slices == [] or self._needs_sort:
+            self.sort_if_needed()
+        with_affine = self.scheme >= APIC
+        inertia = self.dx * self.dx / self.dinv_factor
+        local = np.zeros(9)
+        local[0] = p["mass"].sum()
+        local[1:8] = momentum_and_kinetic_energy(
+            p["x"], p["v"], p["mass"], p["C"] if with_affine else self._dummy_C, with_affine,
+            inertia)
+        local[8] = sum(m.energy(self.material_fields(g)) for g, m in enumerate(self.materials)
+                       if self.group_slices[g][1] > self.group_slices[g][0])
+        total = self.domain.sum(local)
+        return {
+            "mass": total[0],
+            "momentum": total[1:4].copy(), "angular_momentum": total[4:7].copy(),
+            "kinetic_energy": total[7], "elastic_energy": total[8],
+            "total_energy": total[7] + total[8],
+        }
