@@ -1,0 +1,49 @@
+"""Progress bar of a run (rank 0 only): simulated time, step, dt, particle-steps/s, ETA."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from tqdm import tqdm
+
+
+class Progress:
+    """A tqdm bar over simulated time; ``disabled`` for --quiet and ranks other than 0."""
+
+    def __init__(self, end_time: float, n_particles: int, disabled: bool = False):
+        self.end_time = end_time
+        self.n_particles = n_particles
+        self.disabled = bool(disabled)
+        self.bar = None
+        self._t0 = 0.0
+        self._step0 = 0
+        self._last_refresh = 0.0
+
+    def start(self, sim_time: float, step: int) -> None:
+        self._t0 = time.perf_counter()
+        self._step0 = step
+        if self.disabled:
+            return
+        self.bar = tqdm(total=self.end_time, initial=sim_time, unit="t", file=sys.stderr,
+                        dynamic_ncols=True, bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} "
+                        "[{elapsed}<{remaining}{postfix}]", leave=True)
+
+    def update(self, sim_time: float, step: int, dt: float) -> None:
+        if self.bar is None:
+            return
+        now = time.perf_counter()
+        if now - self._last_refresh < 0.5 and sim_time < self.end_time:
+            return  # redrawing every step would cost more than small steps take
+        self._last_refresh = now
+        rate = self.n_particles * (step - self._step0) / max(now - self._t0, 1e-9)
+        self.bar.n = min(sim_time, self.end_time)
+        self.bar.set_postfix_str(f"step {step}, dt {dt:.3g}, {rate:.3g} particle-steps/s",
+                                 refresh=False)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.n = min(self.bar.n, self.end_time)
+            self.bar.close()
+            self.bar = None

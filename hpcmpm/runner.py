@@ -1,0 +1,386 @@
+"""The run loop: time-step choice, output and checkpoint schedule, signals, progress.
+
+`run_command` / `restart_command` are what `hpcmpm run` and `hpcmpm restart` call. Every
+decision that makes ranks branch (stop, write, checkpoint, rebalance) is agreed through a
+collective first, so no rank is left waiting in a collective the others skipped.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import EXIT_CHECKPOINTED_ON_SIGNAL, HpcmpmError, OutputExistsError, SceneError
+from .parallel import Communicator, Domain
+from .progress import Progress
+from .simulation import Simulation
+
+log = logging.getLogger(__name__)
+
+
+class CheckpointedOnSignal(HpcmpmError):
+    """The run received SIGTERM/SIGUSR1, wrote a checkpoint and stopped (resume with
+    `hpcmpm restart`)."""
+
+    exit_code = EXIT_CHECKPOINTED_ON_SIGNAL
+
+
+@dataclass
+class RunOptions:
+    out_dir: Path
+    end_time: float
+    quiet: bool = False
+    checkpoint_every: int | None = None
+    checkpoint_wall: float | None = None  # seconds of wall time between checkpoints
+    checkpoint_keep: int = 2
+    debug_checks: bool = False
+    restart_chain: list[str] = field(default_factory=list)
+
+
+def parse_wall_time(text: str | None) -> float | None:
+    """``HH:MM:SS`` (or ``MM:SS`` or seconds) to seconds."""
+    if text is None:
+        return None
+    try:
+        parts = [float(x) for x in str(text).split(":")]
+    except ValueError:
+        raise SceneError(f"--checkpoint-wall: expected HH:MM:SS, got {text!r}") from None
+    seconds = 0.0
+    for part in parts:
+        seconds = seconds * 60.0 + part
+    if seconds <= 0 or len(parts) > 3:
+        raise SceneError(f"--checkpoint-wall: expected a positive HH:MM:SS, got {text!r}")
+    return seconds
+
+
+class SignalFlag:
+    """Set by SIGTERM/SIGUSR1 (what SLURM sends ahead of the wall time); read at step
+    boundaries only, so a checkpoint is never written from inside a step."""
+
+    SIGNALS = (signal.SIGTERM, signal.SIGUSR1)
+
+    def __init__(self) -> None:
+        self.raised: int | None = None
+        self._previous = {}
+
+    def __enter__(self):
+        for sig in self.SIGNALS:
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        self.raised = signum
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        return False
+
+
+class Runner:
+    """Drives a `Simulation` to ``end_time`` with frames, checkpoints and progress."""
+
+    def __init__(self, sim: Simulation, writer, options: RunOptions, frame_index: int = 0,
+                 first_frame_written: bool = False, observer=None):
+        self.sim = sim
+        self.observer = observer  # called as observer(sim) after every step (tests, studies)
+        self.domain = sim.domain
+        self.writer = writer
+        self.options = options
+        self.frame_index = frame_index  # frames written so far
+        self.first_frame_written = first_frame_written
+        self.dt_warned = False
+        self.last_dt = 0.0
+        every = sim.scene.output.every
+        self.frame_every = every if every and every > 0 else options.end_time
+
+    # -- schedule --------------------------------------------------------------------------
+    def frame_time(self, k: int) -> float:
+        """Simulated time of frame k: 0, every, 2 every, ..., and the end time."""
+        return min(k * self.frame_every, self.options.end_time)
+
+    def choose_dt(self) -> float:
+        sim = self.sim
+        stable = sim.stable_dt()  # also the instability guard, agreed by all ranks
+        fixed = sim.scene.dt
+        if fixed is not None:
+            if fixed > stable and not self.dt_warned:
+                log.warning("fixed dt %.3g exceeds the CFL bound %.3g at step %d; "
+                            "the run may become unstable", fixed, stable, sim.step_index)
+                self.dt_warned = True
+            stable = fixed
+        return stable
+
+    # -- loop ------------------------------------------------------------------------------
+    def run(self) -> dict:
+        sim, opts = self.sim, self.options
+        n_global = self.domain.sum(sim.particles.n)
+        progress = Progress(opts.end_time, n_global, disabled=opts.quiet or self.domain.rank)
+        progress.start(sim.time, sim.step_index)
+        last_ckpt_wall = time.monotonic()
+        if not self.first_frame_written:
+            self.write_frame()
+            self.first_frame_written = True
+        with SignalFlag() as flag:
+            while sim.time < opts.end_time * (1 - 1e-12):
+                if self.domain.any(flag.raised is not None):
+                    self.write_checkpoint()
+                    progress.close()
+                    raise CheckpointedOnSignal(
+                        f"signal received: checkpoint written at step {sim.step_index}, "
+                        f"t={sim.time:.6g} in {opts.out_dir}; continue with "
+                        f"`hpcmpm restart {self.latest_checkpoint_path}`")
+                target = self.frame_time(self.frame_index)
+                dt = self.choose_dt()
+                clipped = sim.time + dt >= target * (1 - 1e-12)
+                if clipped:
+                    dt = target - sim.time
+                sim.step(dt)
+                self.last_dt = dt
+                if clipped:
+                    sim.time = target  # land exactly on the output time
+                    sim.check_health()  # never write a broken state into a frame
+                    self.write_frame()
+                if opts.debug_checks:
+                    self.check_particle_count(n_global)
+                self.maybe_rebalance()
+                if opts.checkpoint_every and sim.step_index % opts.checkpoint_every == 0:
+                    self.write_checkpoint()
+                if opts.checkpoint_wall is not None:
+                    elapsed = self.domain.max(time.monotonic() - last_ckpt_wall)
+                    if elapsed >= opts.checkpoint_wall:
+                        self.write_checkpoint()
+                        last_ckpt_wall = time.monotonic()
+                if self.observer is not None:
+                    self.observer(sim)
+                progress.update(sim.time, sim.step_index, dt)
+        progress.close()
+        if self.writer is not None:
+            self.write_checkpoint()
+        return sim.diagnostics()
+
+    def check_particle_count(self, expected: int) -> None:
+        n = self.domain.sum(self.sim.particles.n)
+        if n != expected:
+            raise HpcmpmError(f"particle count changed at step {self.sim.step_index}: "
+                              f"{expected} -> {n} (migration bug)")
+
+    def maybe_rebalance(self) -> None:
+        spec = self.sim.scene.parallel
+        if self.domain.size > 1 and self.sim.step_index % spec.rebalance_every == 0:
+            if self.domain.rebalance(self.sim.particles, spec.rebalance_threshold):
+                self.sim._needs_sort = True
+
+    # -- output ----------------------------------------------------------------------------
+    def write_frame(self) -> None:
+        if self.writer is None:
+            self.frame_index += 1
+            return
+        sim = self.sim
+        diag = sim.diagnostics()
+        attrs = {k: v for k, v in diag.items()}
+        self.writer.write(sim.particles, sim.time, sim.step_index, extra_attrs=attrs)
+        self.frame_index += 1
+
+    @property
+    def latest_checkpoint_path(self) -> str:
+        return str(getattr(self, "_latest_ckpt", ""))
+
+    def write_checkpoint(self) -> None:
+        from .io.checkpoint import write_checkpoint
+
+        sim, domain = self.sim, self.domain
+        meta = {
+            "step": sim.step_index, "time": sim.time, "frame_index": self.frame_index,
+            "last_dt": self.last_dt, "dt_warned": self.dt_warned,
+            "end_time": self.options.end_time, "scene_text": sim.scene.text,
+            "scene_path": str(sim.scene.path), "boxes": domain.boxes.copy(),
+            "n_ranks": domain.size, "hpcmpm_version": __version__,
+            "restart_chain": list(self.options.restart_chain),
+            "rank_counts": np.asarray(domain.allgather(sim.particles.n), dtype=np.int64),
+        }
+        self._latest_ckpt = write_checkpoint(self.options.out_dir, domain, sim.particles, meta,
+                                             keep=self.options.checkpoint_keep)
+
+
+# -- commands --------------------------------------------------------------------------------
+def load_scene_on_root(comm: Communicator, path: str, overrides) -> object:
+    """Rank 0 validates, every rank gets the frozen scene or the same error."""
+    from .scene import load_scene
+
+    scene, error = None, None
+    if comm.rank == 0:
+        try:
+            scene = load_scene(path, overrides)
+        except SceneError as exc:
+            error = exc
+    scene, error = comm.bcast((scene, error))
+    if error is not None:
+        raise error
+    return scene
+
+
+def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
+    """A run never overwrites another run's output without ``--force``."""
+    problem = None
+    if comm.rank == 0:
+        existing = [p for p in out_dir.glob("*") if p.suffix in (".h5", ".xdmf", ".tmp")] \
+            if out_dir.exists() else []
+        if existing and not force:
+            problem = (f"{out_dir} already holds output of another run ({len(existing)} files); "
+                       f"choose another --out or pass --force to replace it")
+        elif existing:
+            for p in existing:
+                p.unlink()
+        out_dir.mkdir(parents=True, exist_ok=True)
+    problem = comm.bcast(problem)
+    if problem:
+        raise OutputExistsError(problem)
+
+
+def make_domain(scene, comm: Communicator | None = None) -> Domain:
+    return Domain(scene.dim, scene.dx, scene.domain_lo, scene.domain_hi,
+                  comm=None if comm is None else comm.comm)
+
+
+def initial_particles(sim: Simulation) -> None:
+    """Sample the bodies, spread them over the ranks and decompose."""
+    from .geometry import sample_scene
+
+    domain, p = sim.domain, sim.particles
+    values = sample_scene(sim.scene)
+    # Every rank samples (deterministic) and keeps a strided share, so no rank ever holds
+    # the whole scene; the decomposition then moves particles to their owners.
+    mine = np.flatnonzero(values["id"] % domain.size == domain.rank)
+    p.append({k: np.asarray(v)[mine] for k, v in values.items() if k in p})
+    if sim.scene.prescribed:
+        from .boundaries import mark_prescribed_particles
+
+        mark_prescribed_particles(sim.scene, p)
+    domain.decompose(p)
+
+
+def make_writer(sim: Simulation, out_dir: Path, restart_chain: list[str], frame_index: int = 0):
+    from .io.frames import FrameWriter
+
+    provenance = {"restart_chain": restart_chain, "n_ranks": sim.domain.size,
+                  "hpcmpm_version": __version__}
+    return FrameWriter(out_dir, sim.domain, sim.scene.text, sim.dim,
+                       list(sim.scene.output.fields), provenance, first_frame=frame_index)
+
+
+def configure_numba_cache() -> None:
+    """Compile once: a cache directory shared by all ranks, so a second run starts warm."""
+    os.environ.setdefault("NUMBA_CACHE_DIR",
+                          str(Path.home() / ".cache" / "hpcmpm" / "numba"))
+
+
+def report_done(comm: Communicator, out_dir: Path, diag: dict, wall: float, steps: int,
+                n: int) -> None:
+    if comm.rank:
+        return
+    xdmf = out_dir / "particles.xdmf"
+    log.info("done: %d steps, %d particles in %.1f s (%.3g particle-steps/s)", steps, n, wall,
+             n * steps / max(wall, 1e-9))
+    log.info("mass %.6g, kinetic %.6g, elastic %.6g", diag["mass"], diag["kinetic_energy"],
+             diag["elastic_energy"])
+    print(f"output: {out_dir.resolve()}\n"
+          f"open in ParaView: paraview {xdmf.resolve()}  (frames: {out_dir}/frame_*.h5)")
+
+
+def simulate(scene, end_time: float | None = None, observer=None, comm=None) -> Simulation:
+    """Run ``scene`` in-process without writing anything; returns the finished simulation.
+
+    For tests and studies: ``observer(sim)`` sees the state after every step."""
+    comm = comm or Communicator()
+    sim = Simulation(scene, make_domain(scene, comm))
+    initial_particles(sim)
+    options = RunOptions(out_dir=Path("."), end_time=float(end_time or scene.end_time),
+                         quiet=True)
+    Runner(sim, None, options, observer=observer).run()
+    return sim
+
+
+def run_command(args) -> int:
+    comm = Communicator()
+    scene = load_scene_on_root(comm, args.scene, getattr(args, "set", None) or [])
+    out_dir = Path(args.out) if args.out else Path("runs") / Path(args.scene).stem
+    prepare_output_dir(comm, out_dir, getattr(args, "force", False))
+    domain = make_domain(scene, comm)
+    domain.install_abort_hook()
+    sim = Simulation(scene, domain)
+    initial_particles(sim)
+    options = RunOptions(
+        out_dir=out_dir, end_time=float(args.end_time or scene.end_time),
+        quiet=bool(args.quiet), checkpoint_every=args.checkpoint_every or
+        scene.output.checkpoint_every, checkpoint_wall=parse_wall_time(args.checkpoint_wall),
+        checkpoint_keep=scene.output.checkpoint_keep,
+        debug_checks=bool(getattr(args, "debug_checks", False)),
+        restart_chain=[str(Path(args.scene).resolve())])
+    return execute(sim, options, comm, frame_index=0, first_frame_written=False)
+
+
+def execute(sim: Simulation, options: RunOptions, comm: Communicator, frame_index: int,
+            first_frame_written: bool) -> int:
+    writer = make_writer(sim, options.out_dir, options.restart_chain, frame_index)
+    runner = Runner(sim, writer, options, frame_index, first_frame_written)
+    start, step0 = time.perf_counter(), sim.step_index
+    diag = runner.run()
+    n = sim.domain.sum(sim.particles.n)
+    report_done(comm, options.out_dir, diag, time.perf_counter() - start,
+                sim.step_index - step0, n)
+    if comm.rank == 0:
+        log.info("phase times: %s", sim.timers.report())
+    return 0
+
+
+def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
+    """Rebuild the simulation held by checkpoint ``ckpt`` on the current rank count."""
+    from .io.checkpoint import read_checkpoint
+    from .scene import parse_scene
+    from .state import ParticleSet
+
+    probe = Domain.__new__(Domain)  # a Communicator-only view for reading
+    Communicator.__init__(probe, comm.comm)
+    fields, meta = read_checkpoint(ckpt, probe)
+    scene = parse_scene(meta["scene_text"], path=meta.get("scene_path", "<checkpoint>"))
+    domain = make_domain(scene, comm)
+    sim = Simulation(scene, domain)
+    specs = dict(sim.particles.specs)
+    sim.particles = ParticleSet(scene.dim, specs, capacity=len(fields["id"]))
+    sim.particles.append({k: v for k, v in fields.items() if k in specs})
+    same_count = int(meta["n_ranks"]) == domain.size
+    if same_count:
+        domain.set_boxes(np.asarray(meta["boxes"]))
+        domain.migrate(sim.particles)
+    else:
+        domain.decompose(sim.particles)
+    sim.time = float(meta["time"])
+    sim.step_index = int(meta["step"])
+    return sim, meta, end_time if end_time is not None else float(meta["end_time"])
+
+
+def restart_command(args) -> int:
+    comm = Communicator()
+    ckpt = Path(args.checkpoint)
+    sim, meta, end_time = restore_simulation(str(ckpt), comm, args.end_time)
+    sim.domain.install_abort_hook()
+    out_dir = Path(args.out) if args.out else ckpt.parent
+    if args.out and comm.rank == 0:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    chain = list(meta.get("restart_chain", [])) + [str(ckpt.resolve())]
+    options = RunOptions(out_dir=out_dir, end_time=end_time, quiet=bool(args.quiet),
+                         checkpoint_keep=sim.scene.output.checkpoint_keep,
+                         checkpoint_every=getattr(args, "checkpoint_every", None)
+                         or sim.scene.output.checkpoint_every,
+                         checkpoint_wall=parse_wall_time(getattr(args, "checkpoint_wall", None)),
+                         restart_chain=chain)
+    runner_frames = int(meta["frame_index"])
+    return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True)
