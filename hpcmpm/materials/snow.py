@@ -1,0 +1,175 @@
+"""Snow: fixed corotated elasticity on F_E with singular-value clamping and hardening.
+
+Stomakhin et al. 2013; 000 §4.4-4.5; 003 §3.3.3. After each F update the trial elastic part
+F_E = U Sigma V^T (signed SVD) has its singular values clamped to [1 - theta_c, 1 + theta_s];
+the excess goes into the plastic part:
+
+    F_E <- U Sigma_c V^T,   F_P <- V Sigma_c^-1 U^T F_E^trial F_P = V Sigma_c^-1 Sigma V^T F_P,
+
+so F_E F_P (the total deformation gradient) is unchanged. The Lamé parameters harden with
+plastic compression,
+
+    mu = mu0 h,  lam = lam0 h,  h = exp(min(xi (1 - J_P), max_exponent)),     (000 §4.5.1)
+
+and the stress is the fixed corotated one (003 eq. 3.5) of F_E with (mu, lam).
+
+Storage (Stomakhin's convention): the particle field ``F`` holds F_E after the projection,
+``Fp`` holds F_P and ``Jp`` holds det F_P, so the total deformation gradient is ``F @ Fp``. The
+grid-to-particle update F <- (I + dt grad v) F therefore advances the trial F_E, as it must.
+`energy` is the elastic energy of F_E with the hardened moduli.
+
+Softening (000 §4.5.2, Ram's modification): xi < 0 makes mu, lam *decrease* under plastic
+compression (J_P < 1): h = exp(-|xi| (1 - J_P)) falls towards exp(-|xi|) > 0, so the material
+never loses all stiffness. With xi < 0 plastic *extension* (J_P > 1) stiffens it instead, and
+there xi (1 - J_P) grows without bound; ``max_exponent`` caps the exponent so exp() cannot
+overflow. Its default, |xi|, never binds for hardening (xi > 0 gives xi (1 - J_P) < xi for any
+J_P > 0) and for softening bounds the stiffening by the same factor exp(|xi|).
+
+`wave_speed` reports the rest value sqrt((lam0 + 2 mu0)/rho): it must not depend on particle
+state, since every rank must compute the same CFL bound. Hardening raises the true speed by
+sqrt(h) <= exp(max_exponent / 2); lower simulation.cfl accordingly for strongly hardened snow.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from ..state import SCALAR, TENSOR, FieldSpec
+from .base import POISSON, YOUNG, Material, Param, lame
+from .decompositions import _v_diag_vt, polar2, polar3, svd2, svd3
+from .fixed_corotated import corotated_psi_2d, corotated_psi_3d, corotated_tau_2d, corotated_tau_3d
+from .tensors import load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
+
+
+@njit(cache=True)
+def _clamp(s, lo, hi):
+    return min(max(s, lo), hi)
+
+
+@njit(cache=True)
+def hardening(Jp, xi, max_exponent):
+    """h = exp(min(xi (1 - Jp), max_exponent)), the factor on mu0 and lam0 (000 §4.5)."""
+    return math.exp(min(xi * (1.0 - Jp), max_exponent))
+
+
+@njit(cache=True)
+def _update_2d(F, Fp, Jp, tau, mu0, lam0, lo, hi, xi, max_exponent):
+    """Clamp F_E = F[p], move the excess into Fp[p] and Jp[p], write tau[p].
+    F, Fp, tau (n, 2, 2); Jp (n,). lo, hi: the clamp interval of the singular values."""
+    for p in range(F.shape[0]):
+        f = load2(F, p)
+        U, s0, s1, V = svd2(f)
+        c0 = _clamp(s0, lo, hi)
+        c1 = _clamp(s1, lo, hi)
+        R = mul2_bt(U, V)
+        if c0 != s0 or c1 != s1:
+            r0 = s0 / c0
+            r1 = s1 / c1
+            # V diag(r) V^T
+            M = (V[0] * V[0] * r0 + V[1] * V[1] * r1, V[0] * V[2] * r0 + V[1] * V[3] * r1,
+                 V[2] * V[0] * r0 + V[3] * V[1] * r1, V[2] * V[2] * r0 + V[3] * V[3] * r1)
+            store2(Fp, p, mul2(M, load2(Fp, p)))
+            Jp[p] *= r0 * r1
+            f = mul2_bt((U[0] * c0, U[1] * c1, U[2] * c0, U[3] * c1), V)
+            store2(F, p, f)
+        h = hardening(Jp[p], xi, max_exponent)
+        store2(tau, p, corotated_tau_2d(f, R, mu0 * h, lam0 * h))
+
+
+@njit(cache=True)
+def _update_3d(F, Fp, Jp, tau, mu0, lam0, lo, hi, xi, max_exponent):
+    """Clamp F_E = F[p], move the excess into Fp[p] and Jp[p], write tau[p].
+    F, Fp, tau (n, 3, 3); Jp (n,). lo, hi: the clamp interval of the singular values."""
+    for p in range(F.shape[0]):
+        f = load3(F, p)
+        U, s0, s1, s2, V = svd3(f)
+        c0 = _clamp(s0, lo, hi)
+        c1 = _clamp(s1, lo, hi)
+        c2 = _clamp(s2, lo, hi)
+        R = mul3_bt(U, V)
+        if c0 != s0 or c1 != s1 or c2 != s2:
+            r0 = s0 / c0
+            r1 = s1 / c1
+            r2 = s2 / c2
+            store3(Fp, p, mul3(_v_diag_vt(V, r0, r1, r2), load3(Fp, p)))
+            Jp[p] *= r0 * r1 * r2
+            f = mul3_bt((U[0] * c0, U[1] * c1, U[2] * c2,
+                         U[3] * c0, U[4] * c1, U[5] * c2,
+                         U[6] * c0, U[7] * c1, U[8] * c2), V)
+            store3(F, p, f)
+        h = hardening(Jp[p], xi, max_exponent)
+        store3(tau, p, corotated_tau_3d(f, R, mu0 * h, lam0 * h))
+
+
+@njit(cache=True)
+def _energy_2d(F, Jp, vol0, mu0, lam0, xi, max_exponent):
+    total = 0.0
+    for p in range(F.shape[0]):
+        f = load2(F, p)
+        R, _ = polar2(f)
+        h = hardening(Jp[p], xi, max_exponent)
+        total += vol0[p] * corotated_psi_2d(f, R, mu0 * h, lam0 * h)
+    return total
+
+
+@njit(cache=True)
+def _energy_3d(F, Jp, vol0, mu0, lam0, xi, max_exponent):
+    total = 0.0
+    for p in range(F.shape[0]):
+        f = load3(F, p)
+        R, _ = polar3(f)
+        h = hardening(Jp[p], xi, max_exponent)
+        total += vol0[p] * corotated_psi_3d(f, R, mu0 * h, lam0 * h)
+    return total
+
+
+class Snow(Material):
+    """Stomakhin 2013 snow: clamped fixed corotated elasticity with (de)hardening; F holds F_E."""
+
+    name = "snow"
+    parameters = {
+        "E": YOUNG,
+        "nu": POISSON,
+        "theta_c": Param(0.0, 1.0, low_inclusive=True,
+                         doc="critical compression: singular values of F_E >= 1 - theta_c "
+                             "(Stomakhin: 2.5e-2)"),
+        "theta_s": Param(0.0, math.inf, low_inclusive=True,
+                         doc="critical stretch: singular values of F_E <= 1 + theta_s "
+                             "(Stomakhin: 7.5e-3)"),
+        "xi": Param(-math.inf, math.inf,
+                    doc="hardening coefficient (Stomakhin: 10); < 0 softens under plastic "
+                        "compression (000 §4.5.2)"),
+        "max_exponent": Param(0.0, 700.0, required=False, default=None, low_inclusive=True,
+                              doc="cap on xi (1 - Jp) in the hardening factor so exp() stays "
+                                  "finite; default |xi|"),
+    }
+    fields = {"Fp": FieldSpec(TENSOR, "f8", "identity"), "Jp": FieldSpec(SCALAR, "f8", 1.0)}
+    uses_svd = True
+
+    def __init__(self, spec, dim: int):
+        super().__init__(spec, dim)
+        q = self.params
+        self.mu, self.lam = lame(q["E"], q["nu"])
+        self.lower = 1.0 - q["theta_c"]
+        self.upper = 1.0 + q["theta_s"]
+        self.xi = q["xi"]
+        self.max_exponent = abs(self.xi) if q["max_exponent"] is None else q["max_exponent"]
+        self._update = _update_2d if dim == 2 else _update_3d
+        self._energy = _energy_2d if dim == 2 else _energy_3d
+
+    def hardening(self, Jp: float) -> float:
+        """The factor h(Jp) on mu0 and lam0."""
+        return float(hardening(Jp, self.xi, self.max_exponent))
+
+    def update_stress(self, fields, dt: float) -> None:
+        """Projects fields["F"] (n, d, d, trial F_E) onto the clamp, updates fields["Fp"]
+        (n, d, d) and fields["Jp"] (n,), writes fields["tau"] (n, d, d)."""
+        self._update(fields["F"], fields["Fp"], fields["Jp"], fields["tau"], self.mu, self.lam,
+                     self.lower, self.upper, self.xi, self.max_exponent)
+
+    def energy(self, fields) -> float:
+        """sum_p vol0_p psi_FC(F_E,p; mu(Jp), lam(Jp))."""
+        return float(self._energy(fields["F"], fields["Jp"], fields["vol0"], self.mu, self.lam,
+                                  self.xi, self.max_exponent))

@@ -1,0 +1,98 @@
+"""Weakly compressible fluid: pressure from the volume ratio J only, no shear stiffness.
+
+psi(J) = E (J - 1 - ln J),   tau = P F^T = J psi'(J) I = E (J - 1) I,   p = -E (J - 1)/J.
+
+This is the fluid of Taichi's mpm88 example made energy-consistent. mpm88 tracks J alone and
+adds ``-dt * 4 * E * p_vol * (J - 1) / dx**2`` to the MLS affine matrix; in MLS-MPM (Hu et al.
+2018) the stress term of that matrix is ``-dt * vol0 * D^-1 * tau`` with D^-1 = 4/dx^2 for
+quadratic B-splines, so mpm88's term is exactly tau = E (J - 1) I with vol0 = p_vol. The energy
+whose Kirchhoff stress that is follows from tau = J psi'(J) I; it is convex, zero at J = 1 and
+grows without bound as J -> 0. (psi = E/2 (J - 1)^2 would give tau = E (J - 1) J I instead,
+which differs from mpm88 at finite compression.) E is the bulk modulus at rest, so the sound
+speed is sqrt(E / rho).
+
+A fluid has no memory of shape: after the stress is computed, F is reset to J^(1/d) I, which
+keeps J (the only state) and keeps F well conditioned however much the flow shears it (as
+Taichi's mpm99 does for its fluid).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from .base import Material, Param
+from .tensors import det2, det3, load2, load3
+
+
+@njit(cache=True)
+def _stress_2d(F, tau, E):
+    """tau_p = E (J - 1) I, then F_p = sqrt(J) I; F, tau (n, 2, 2)."""
+    for p in range(F.shape[0]):
+        J = det2(load2(F, p))
+        s = E * (J - 1.0)
+        tau[p, 0, 0] = s
+        tau[p, 0, 1] = 0.0
+        tau[p, 1, 0] = 0.0
+        tau[p, 1, 1] = s
+        r = math.sqrt(J)
+        F[p, 0, 0] = r
+        F[p, 0, 1] = 0.0
+        F[p, 1, 0] = 0.0
+        F[p, 1, 1] = r
+
+
+@njit(cache=True)
+def _stress_3d(F, tau, E):
+    """tau_p = E (J - 1) I, then F_p = J^(1/3) I; F, tau (n, 3, 3)."""
+    for p in range(F.shape[0]):
+        J = det3(load3(F, p))
+        s = E * (J - 1.0)
+        r = J ** (1.0 / 3.0)  # NaN for J <= 0, which the health check reports
+        for i in range(3):
+            for j in range(3):
+                tau[p, i, j] = s if i == j else 0.0
+                F[p, i, j] = r if i == j else 0.0
+
+
+@njit(cache=True)
+def _energy_2d(F, vol0, E):
+    total = 0.0
+    for p in range(F.shape[0]):
+        J = det2(load2(F, p))
+        total += vol0[p] * E * (J - 1.0 - math.log(J))
+    return total
+
+
+@njit(cache=True)
+def _energy_3d(F, vol0, E):
+    total = 0.0
+    for p in range(F.shape[0]):
+        J = det3(load3(F, p))
+        total += vol0[p] * E * (J - 1.0 - math.log(J))
+    return total
+
+
+class WeaklyCompressible(Material):
+    """mpm88's J-based fluid with an energy; E is the bulk modulus (no nu: no shear)."""
+
+    name = "weakly_compressible"
+    parameters = {"E": Param(0.0, math.inf, doc="bulk modulus (stress units); tau = E (J - 1) I")}
+    fields = {}
+    uses_svd = False
+
+    def __init__(self, spec, dim: int):
+        super().__init__(spec, dim)
+        # Small-strain response tau = E tr(eps) I: lam = E, mu = 0, wave speed sqrt(E / rho).
+        self.mu, self.lam = 0.0, self.params["E"]
+        self._stress = _stress_2d if dim == 2 else _stress_3d
+        self._energy = _energy_2d if dim == 2 else _energy_3d
+
+    def update_stress(self, fields, dt: float) -> None:
+        """Writes fields["tau"] (n, d, d) and resets fields["F"] (n, d, d) to J^(1/d) I."""
+        self._stress(fields["F"], fields["tau"], self.params["E"])
+
+    def energy(self, fields) -> float:
+        """sum_p vol0_p E (J_p - 1 - ln J_p)."""
+        return float(self._energy(fields["F"], fields["vol0"], self.params["E"]))
