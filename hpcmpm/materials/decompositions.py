@@ -16,7 +16,9 @@ accumulated into V) until every pair of columns is orthogonal to round-off; the 
 are then the singular values. Unlike eigen-decomposing F^T F, it keeps small singular values
 to full relative accuracy (no squaring of the condition number), it is exact for repeated
 singular values (nothing to rotate), and it cannot divide by a vanishing singular value: U is
-completed with cross products when columns vanish.
+completed with cross products when columns vanish. The 3D polar decomposition, which only
+needs R, first tries Higham's scaled Newton iteration (about 150 ns against 430 ns for the
+Jacobi SVD) and falls back to the SVD for nearly singular or inverted F.
 """
 
 from __future__ import annotations
@@ -26,10 +28,19 @@ import math
 import numpy as np
 from numba import njit
 
+from .tensors import det3, frob3, mul3, mul3_bt
+
 # Stop rotating a pair of columns once |x.y| <= ORTHO_TOL |x||y|: a few ulps, so the columns
 # (hence U) are orthogonal to round-off. Quadratic convergence reaches it in ~4-6 sweeps.
 ORTHO_TOL = 4.0e-16
+ORTHO_TOL2 = ORTHO_TOL * ORTHO_TOL
 MAX_SWEEPS = 30
+# Newton polar fast path: used while det F > NEWTON_MIN_DET |F|_F^3 (condition number below
+# ~1e4, far beyond any healthy MPM F); the last step is below sqrt(NEWTON_STEP_TOL2) ~ 1e-9,
+# so the result is exact to round-off (quadratic convergence).
+NEWTON_MIN_DET = 1.0e-9
+NEWTON_STEP_TOL2 = 1.0e-18
+NEWTON_MAX_ITER = 20
 
 
 # -- 2D --------------------------------------------------------------------------------------
@@ -90,7 +101,8 @@ def _column_rotation(x0, x1, x2, y0, y1, y2):
     alpha = x0 * x0 + x1 * x1 + x2 * x2
     beta = y0 * y0 + y1 * y1 + y2 * y2
     gamma = x0 * y0 + x1 * y1 + x2 * y2
-    if gamma == 0.0 or abs(gamma) <= ORTHO_TOL * math.sqrt(alpha) * math.sqrt(beta):
+    # Squared test (no square roots): this runs for every pair of every sweep.
+    if gamma * gamma <= ORTHO_TOL2 * alpha * beta:
         return 1.0, 0.0
     c, s, _ = _jacobi_angle(alpha, beta, gamma)
     return c, s
@@ -197,24 +209,69 @@ def svd3(f):
 
 
 @njit(cache=True)
-def polar3(f):
-    """F = R S for a 3x3 tuple: returns (R, S), R = U V^T a rotation, S = V Sigma V^T."""
-    U, s0, s1, s2, V = svd3(f)
-    R = (U[0] * V[0] + U[1] * V[1] + U[2] * V[2],
-         U[0] * V[3] + U[1] * V[4] + U[2] * V[5],
-         U[0] * V[6] + U[1] * V[7] + U[2] * V[8],
-         U[3] * V[0] + U[4] * V[1] + U[5] * V[2],
-         U[3] * V[3] + U[4] * V[4] + U[5] * V[5],
-         U[3] * V[6] + U[4] * V[7] + U[5] * V[8],
-         U[6] * V[0] + U[7] * V[1] + U[8] * V[2],
-         U[6] * V[3] + U[7] * V[4] + U[8] * V[5],
-         U[6] * V[6] + U[7] * V[7] + U[8] * V[8])
-    S = _v_diag_vt(V, s0, s1, s2)
-    return R, S
+def _newton_rotation3(f):
+    """Rotation of F = R S by Higham's scaled Newton iteration X <- (g X + X^-T / g) / 2
+    (Higham 1986, Frobenius-norm scaling g). Returns (R, True), or (F, False) when F is too
+    ill conditioned for it (det F <= NEWTON_MIN_DET |F|^3) or it does not converge."""
+    x = f
+    norm2 = frob3(x)
+    if not det3(x) > NEWTON_MIN_DET * norm2 * math.sqrt(norm2):
+        return f, False
+    for _ in range(NEWTON_MAX_ITER):
+        c = (x[4] * x[8] - x[5] * x[7], x[5] * x[6] - x[3] * x[8], x[3] * x[7] - x[4] * x[6],
+             x[2] * x[7] - x[1] * x[8], x[0] * x[8] - x[2] * x[6], x[1] * x[6] - x[0] * x[7],
+             x[1] * x[5] - x[2] * x[4], x[2] * x[3] - x[0] * x[5], x[0] * x[4] - x[1] * x[3])
+        det = x[0] * c[0] + x[1] * c[1] + x[2] * c[2]
+        if not det > 0.0:
+            return f, False
+        # X^-T = cof(X) / det; g = sqrt(|X^-1| / |X|) balances the two terms.
+        g = math.sqrt(math.sqrt(frob3(c)) / (det * math.sqrt(frob3(x))))
+        a = 0.5 * g
+        b = 0.5 / (g * det)
+        y = (a * x[0] + b * c[0], a * x[1] + b * c[1], a * x[2] + b * c[2],
+             a * x[3] + b * c[3], a * x[4] + b * c[4], a * x[5] + b * c[5],
+             a * x[6] + b * c[6], a * x[7] + b * c[7], a * x[8] + b * c[8])
+        change = 0.0
+        for k in range(9):
+            change += (y[k] - x[k]) * (y[k] - x[k])
+        x = y
+        # Quadratic convergence: a step of size e leaves an error ~e^2, so stop one step
+        # after the step drops below sqrt(eps).
+        if change < NEWTON_STEP_TOL2:
+            return x, True
+    return f, False
 
 
 @njit(cache=True)
-def _v_diag_vt(V, s0, s1, s2):
+def polar3(f):
+    """F = R S for a 3x3 tuple: returns (R, S), R a rotation, S = R^T F symmetric.
+
+    Well-conditioned F (every F of a healthy MPM step) takes the scaled Newton iteration, about
+    4x cheaper than the Jacobi SVD; nearly singular or inverted F falls back to the signed SVD
+    (R = U V^T, S = V Sigma V^T)."""
+    R, ok = _newton_rotation3(f)
+    if ok:
+        S = mul3(_transpose3(R), f)
+        return R, _symmetrize3(S)
+    U, s0, s1, s2, V = svd3(f)
+    return mul3_bt(U, V), v_diag_vt(V, s0, s1, s2)
+
+
+@njit(cache=True)
+def _transpose3(a):
+    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
+
+
+@njit(cache=True)
+def _symmetrize3(a):
+    s01 = 0.5 * (a[1] + a[3])
+    s02 = 0.5 * (a[2] + a[6])
+    s12 = 0.5 * (a[5] + a[7])
+    return (a[0], s01, s02, s01, a[4], s12, s02, s12, a[8])
+
+
+@njit(cache=True)
+def v_diag_vt(V, s0, s1, s2):
     """V diag(s) V^T (symmetric; the upper triangle is mirrored so it is exactly so)."""
     S00 = V[0] * V[0] * s0 + V[1] * V[1] * s1 + V[2] * V[2] * s2
     S01 = V[0] * V[3] * s0 + V[1] * V[4] * s1 + V[2] * V[5] * s2

@@ -38,7 +38,7 @@ from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, YOUNG, Material, Param, lame
-from .decompositions import _v_diag_vt, polar2, polar3, svd2, svd3
+from .decompositions import v_diag_vt, polar2, polar3, svd2, svd3
 from .fixed_corotated import corotated_psi_2d, corotated_psi_3d, corotated_tau_2d, corotated_tau_3d
 from .tensors import load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
 
@@ -93,7 +93,7 @@ def _update_3d(F, Fp, Jp, tau, mu0, lam0, lo, hi, xi, max_exponent):
             r0 = s0 / c0
             r1 = s1 / c1
             r2 = s2 / c2
-            store3(Fp, p, mul3(_v_diag_vt(V, r0, r1, r2), load3(Fp, p)))
+            store3(Fp, p, mul3(v_diag_vt(V, r0, r1, r2), load3(Fp, p)))
             Jp[p] *= r0 * r1 * r2
             f = mul3_bt((U[0] * c0, U[1] * c1, U[2] * c2,
                          U[3] * c0, U[4] * c1, U[5] * c2,
