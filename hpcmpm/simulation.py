@@ -14,7 +14,8 @@ import numpy as np
 from .boundaries import build_boundaries
 from .errors import InstabilityError
 from .kernels.grid import update_velocity
-from .kernels.particles import cell_sort_keys, momentum_and_kinetic_energy, scan_health
+from .kernels.particles import (cell_sort_keys, counting_sort_order,
+                                momentum_and_kinetic_energy, scan_health)
 from .kernels.shape import ORDERS, inverse_inertia_factor
 from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCHEMES
 from .materials import make_material
@@ -61,6 +62,8 @@ class Simulation:
         self._dummy_C = np.zeros((1, self.dim, self.dim))
         self._bad = np.empty(MAX_REPORTED, dtype=np.int64)
         self._keys = np.empty(0, dtype=np.int64)
+        self._order = np.empty(0, dtype=np.int64)
+        self._counts = np.empty(0, dtype=np.int64)
         self._needs_sort = True
         self.group_slices: list[tuple[int, int]] = []
         self.time = 0.0
@@ -116,9 +119,16 @@ class Simulation:
             return
         if len(self._keys) < p.n:
             self._keys = np.empty(p.capacity, dtype=np.int64)
-        keys = self._keys[: p.n]
-        cell_sort_keys(p["x"], p["group"], self.domain_lo, 1.0 / self.dx, keys)
-        order = np.argsort(keys, kind="stable")
+            self._order = np.empty(p.capacity, dtype=np.int64)
+        keys, order = self._keys[: p.n], self._order[: p.n]
+        n_keys = cell_sort_keys(p["x"], p["group"], self.domain_lo, 1.0 / self.dx, keys)
+        if n_keys <= 4 * p.n + 1024:
+            # Dense key range (the usual case): counting sort, O(n), no allocation.
+            if len(self._counts) < n_keys + 1:
+                self._counts = np.empty(2 * n_keys + 1, dtype=np.int64)
+            counting_sort_order(keys, n_keys, order, self._counts)
+        else:
+            order = np.argsort(keys, kind="stable")
         p.permute(order)
         bounds = np.searchsorted(p["group"], np.arange(len(self.materials) + 1))
         self.group_slices = [(int(bounds[g]), int(bounds[g + 1]))

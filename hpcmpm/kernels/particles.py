@@ -53,10 +53,11 @@ def scan_health(x, v, F, bad, max_report):
 def cell_sort_keys(x, group, domain_lo, inv_dx, keys):
     """Sort key ``(group, cell)`` packed in an int64: cells in row-major order over the
     particles' bounding box of cells, groups outermost so each material's particles are one
-    contiguous slice. Writes ``keys`` (n,)."""
+    contiguous slice. Writes ``keys`` (n,); returns the number of distinct key values
+    (1 + the largest possible key), for a counting sort."""
     n, dim = x.shape
     if n == 0:
-        return
+        return 0
     lo = np.empty(dim, dtype=np.int64)
     hi = np.empty(dim, dtype=np.int64)
     for a in range(dim):
@@ -76,6 +77,27 @@ def cell_sort_keys(x, group, domain_lo, inv_dx, keys):
             c = int(math.floor((x[p, a] - domain_lo[a]) * inv_dx))
             lin = lin * (hi[a] - lo[a] + 1) + (c - lo[a])
         keys[p] = group[p] * ncell + lin
+    n_groups = 0
+    for p in range(n):
+        n_groups = max(n_groups, group[p] + 1)
+    return n_groups * ncell
+
+
+@njit(cache=True)
+def counting_sort_order(keys, n_keys, order, counts):
+    """Stable permutation sorting ``keys`` (values in [0, n_keys)) in O(n + n_keys).
+
+    ``counts`` is caller-owned scratch of length >= n_keys + 1; writes ``order`` (n,)."""
+    for k in range(n_keys + 1):
+        counts[k] = 0
+    for p in range(keys.shape[0]):
+        counts[keys[p] + 1] += 1
+    for k in range(n_keys):
+        counts[k + 1] += counts[k]
+    for p in range(keys.shape[0]):
+        k = keys[p]
+        order[counts[k]] = p
+        counts[k] += 1
 
 
 @njit(cache=True)
