@@ -68,6 +68,9 @@ class Simulation:
         self.group_slices: list[tuple[int, int]] = []
         self.time = 0.0
         self.step_index = 0
+        # Optional ``forcing(sim, dt)`` that adds ``dt * b`` to particle velocities before P2G:
+        # through P2G that is exactly the external nodal force sum_p w_ip m_p b_p.
+        self.forcing = None
         from .timers import PhaseTimers
 
         self.timers = PhaseTimers()
@@ -92,6 +95,8 @@ class Simulation:
             self.sort_if_needed()
         with t("stress"):
             self.update_stress(dt)  # plastic projection, then Kirchhoff stress per material
+        if self.forcing is not None:
+            self.forcing(self, dt)  # body force as a particle impulse (manufactured solutions)
         with t("p2g"):
             grid.fit(*domain.grid_box(p, self.order))
             self.scatter(dt)  # mass, momentum, dt f_i (000 eq. 3.1; Hu 2018 eq. 17)
