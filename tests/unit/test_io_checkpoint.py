@@ -1,0 +1,161 @@
+"""Checkpoints: bitwise round trip on the same and other rank counts, keep-last-K, atomicity,
+and damaged files reported as CheckpointError naming the file and the previous checkpoint."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from test_io_threadranks import run_ranks
+
+from hpcmpm.errors import CheckpointError
+from hpcmpm.io.checkpoint import (checkpoint_name, latest_checkpoint, read_checkpoint,
+                                  write_checkpoint)
+from hpcmpm.state import FieldSpec, ParticleSet
+
+EXTRA = {"Fp": FieldSpec("tensor", "f8", "identity"), "Jp": FieldSpec("scalar", "f8", 1.0),
+         "flag": FieldSpec("scalar", "?", False), "label": FieldSpec("scalar", "i4", 0),
+         "C": FieldSpec("tensor", "f4", 0.0)}
+
+
+def rank_particles(dim: int, rank: int, size: int, n: int, empty_rank=None) -> ParticleSet:
+    rng = np.random.default_rng(1000 + rank)
+    count = 0 if rank == empty_rank else n + 7 * rank
+    p = ParticleSet(dim, EXTRA)
+    p.append({"id": rank * 100_000 + rng.permutation(count), "x": rng.random((count, dim)),
+              "v": rng.standard_normal((count, dim)), "group": rng.integers(0, 4, count),
+              "F": rng.standard_normal((count, dim, dim)), "flag": rng.random(count) < 0.5,
+              "label": rng.integers(-5, 5, count), "C": rng.random((count, dim, dim)),
+              "tau": rng.standard_normal((count, dim, dim)), "mass": rng.random(count),
+              "vol0": rng.random(count), "Jp": rng.random(count)})
+    return p
+
+
+def meta(step: int, size: int) -> dict:
+    return {"step": step, "time": step * 1e-3, "frame_index": 4, "last_dt": 1e-3 / 3,
+            "scene_text": 'name = "ckpt"\n', "restart_chain": ["a.toml"], "n_ranks": size,
+            "rng_state": {"bit_generator": "PCG64", "state": {"state": 2**100 + 1}},
+            "boxes": np.arange(size * 6, dtype=np.int64).reshape(size, 2, 3),
+            "hpcmpm_version": "0.1.0"}
+
+
+def write(folder, size, step=100, keep=2, dim=3, n=60, empty_rank=None, chunk_bytes=4096):
+    def body(comm):
+        p = rank_particles(dim, comm.rank, comm.size, n, empty_rank)
+        path = write_checkpoint(folder, comm, p, meta(step, comm.size), keep=keep,
+                                mode="serial", chunk_bytes=chunk_bytes)
+        return path, p.snapshot()
+
+    results = run_ranks(size, body)
+    return results[0][0], [snap for _, snap in results]
+
+
+def read(path, size):
+    return run_ranks(size, lambda comm: read_checkpoint(path, comm))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("size,empty_rank", [(1, None), (2, None), (2, 0), (3, 1)])
+def test_round_trip_same_rank_count_is_bitwise(tmp_path, dim, size, empty_rank):
+    path, written = write(tmp_path, size, dim=dim, empty_rank=empty_rank)
+    assert path.name == checkpoint_name(100) == "ckpt_000000100.h5"
+    for (fields, got_meta), want in zip(read(path, size), written):
+        assert sorted(fields) == sorted(want)
+        for name, arr in want.items():
+            assert fields[name].dtype == arr.dtype and fields[name].shape == arr.shape
+            assert fields[name].tobytes() == arr.tobytes(), name
+        assert got_meta["rng_state"] == meta(100, size)["rng_state"]
+        assert got_meta["last_dt"] == 1e-3 / 3 and got_meta["restart_chain"] == ["a.toml"]
+        np.testing.assert_array_equal(got_meta["boxes"], meta(100, size)["boxes"])
+        assert got_meta["boxes"].dtype == np.int64
+
+
+@pytest.mark.parametrize("write_size,read_size", [(2, 3), (3, 1), (1, 2)])
+def test_read_on_another_rank_count_splits_rows_evenly(tmp_path, write_size, read_size):
+    path, written = write(tmp_path, write_size)
+    shares = [fields for fields, _ in read(path, read_size)]
+    counts = [len(f["id"]) for f in shares]
+    assert max(counts) - min(counts) <= 1
+    for name in written[0]:
+        whole = np.concatenate([s[name] for s in shares])
+        np.testing.assert_array_equal(whole, np.concatenate([w[name] for w in written]))
+
+
+def test_keep_last_k_and_latest(tmp_path):
+    for step in (100, 200, 300, 400):
+        write(tmp_path, 2, step=step, keep=3)
+    assert sorted(p.name for p in tmp_path.glob("ckpt_*")) == [
+        checkpoint_name(s) for s in (200, 300, 400)]
+    write(tmp_path, 1, step=500, keep=1)
+    assert [p.name for p in tmp_path.glob("ckpt_*")] == [checkpoint_name(500)]
+    # A partial write (crash before rename) is never picked.
+    (tmp_path / (checkpoint_name(900) + ".tmp")).write_bytes(b"\x89HDF partial")
+    assert latest_checkpoint(tmp_path) == tmp_path / checkpoint_name(500)
+    assert latest_checkpoint(tmp_path / "nowhere") is None
+    assert not list(tmp_path.glob("*.h5.tmp"))[1:]  # only the planted one
+
+
+def test_keep_leaves_newer_steps_of_another_timeline(tmp_path):
+    write(tmp_path, 1, step=300)
+    write(tmp_path, 1, step=100)
+    assert sorted(p.name for p in tmp_path.glob("ckpt_*")) == [
+        checkpoint_name(100), checkpoint_name(300)]
+
+
+def test_truncated_file_names_file_and_previous(tmp_path):
+    write(tmp_path, 2, step=100)
+    path, _ = write(tmp_path, 2, step=200)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError) as err:
+        read(path, 2)
+    message = str(err.value)
+    assert "ckpt_000000200.h5" in message and "truncated" in message
+    assert "previous checkpoint ckpt_000000100.h5 may still be usable" in message
+    assert "\n" not in message
+    read(tmp_path / checkpoint_name(100), 2)  # the previous one still loads
+
+
+def flip_bytes_in(path, dataset: str, where: int = 5) -> None:
+    with h5py.File(path, "r") as h5:
+        offset = h5[dataset].id.get_offset()
+    with open(path, "r+b") as f:
+        f.seek(offset + where)
+        byte = f.read(1)
+        f.seek(offset + where)
+        f.write(bytes([byte[0] ^ 0x5A]))
+
+
+@pytest.mark.parametrize("dataset", ["/particles/x", "/particles/flag", "/meta/boxes"])
+@pytest.mark.parametrize("read_size", [1, 2])
+def test_corrupted_bytes_are_detected(tmp_path, dataset, read_size):
+    write(tmp_path, 2, step=100)
+    path, _ = write(tmp_path, 2, step=200)
+    flip_bytes_in(path, dataset)
+    with pytest.raises(CheckpointError) as err:
+        read(path, read_size)
+    assert str(err.value) == (f"ckpt_000000200.h5: checksum mismatch in {dataset}: file is "
+                              "corrupt; the previous checkpoint ckpt_000000100.h5 may still "
+                              "be usable")
+    read(tmp_path / checkpoint_name(100), read_size)
+
+
+def test_missing_and_foreign_files(tmp_path):
+    with pytest.raises(CheckpointError, match="no such checkpoint"):
+        read(tmp_path / "ckpt_000000001.h5", 1)
+    foreign = tmp_path / "ckpt_000000002.h5"
+    with h5py.File(foreign, "w") as h5:
+        h5["x"] = 1
+    with pytest.raises(CheckpointError, match="not an hpcmpm checkpoint"):
+        read(foreign, 1)
+    text = tmp_path / "ckpt_000000003.h5"
+    text.write_text("hello")
+    with pytest.raises(CheckpointError, match="ckpt_000000003.h5: not a readable HDF5 file"):
+        read(text, 2)
+
+
+def test_unwritable_folder_is_a_checkpoint_error(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(CheckpointError, match="cannot"):
+        write(blocker / "sub", 2)
