@@ -1,0 +1,9 @@
+"""MPI: decomposition, halo exchanges, migration, load balance and reductions.
+
+The only package that imports mpi4py; everything else talks to `Domain` verbs.
+"""
+
+from .comm import Communicator
+from .domain import Domain
+
+__all__ = ["Communicator", "Domain"]

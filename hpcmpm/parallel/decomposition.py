@@ -1,0 +1,170 @@
+"""Recursive coordinate bisection (RCB) of the cell index space, and the owner lookup.
+
+A rank owns a box of cells ``[lo, hi)`` (global indices, ARCHITECTURE.md); the boxes tile the
+whole index space, the outermost faces sitting at ``+-BIG``. The bisection is computed from
+global histograms only, so every rank derives the same boxes from the same reductions.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+from numba import njit
+
+# Outer faces of the outermost boxes: "infinity" that still fits int64 arithmetic.
+BIG = 2**40
+
+# Neutral element for the max-reduction of particle extents of a node with no particles.
+_EMPTY = -(2**62)
+
+
+def particle_cells(x: np.ndarray, domain_lo: np.ndarray, inv_dx: float) -> np.ndarray:
+    """Cell index of each particle, ``floor((x - domain_lo) * inv_dx)``, shape (n, dim) int64.
+
+    The same expression (multiply by ``1/dx``) as the transfer kernels, so a particle on a cell
+    face lands in the same cell here and in P2G. Non-finite positions map to cell 0 so that a
+    blown-up particle cannot make an astronomically large box (the instability guard reports it).
+    """
+    xi = (x - domain_lo) * inv_dx
+    xi = np.where(np.isfinite(xi), xi, 0.0)
+    return np.floor(np.clip(xi, -BIG, BIG - 1)).astype(np.int64)
+
+
+@njit(cache=True)
+def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
+    """Rank whose cell box holds each particle (``me`` first: most particles stay).
+
+    x (n, d) float64; boxes (size, 2, d) int64 ``[lo, hi)``; out (n,) int64. Non-finite
+    positions keep ``me``.
+    """
+    n, dim = x.shape
+    n_boxes = boxes.shape[0]
+    cell = np.empty(dim, np.int64)
+    for p in range(n):
+        finite = True
+        for a in range(dim):
+            xi = (x[p, a] - domain_lo[a]) * inv_dx
+            if not (xi > -BIG and xi < BIG):  # false for NaN too
+                finite = False
+                break
+            cell[a] = int(math.floor(xi))
+        out[p] = me
+        if not finite:
+            continue
+        for k in range(n_boxes + 1):
+            b = me if k == 0 else k - 1
+            if k > 0 and b == me:
+                continue
+            inside = True
+            for a in range(dim):
+                if cell[a] < boxes[b, 0, a] or cell[a] >= boxes[b, 1, a]:
+                    inside = False
+                    break
+            if inside:
+                out[p] = b
+                break
+    return out
+
+
+def _choose_cut(hist: np.ndarray, first: int, n_left: int, n_ranks: int) -> int:
+    """Cell index ``c`` that puts the weighted ``n_left/n_ranks`` quantile of ``hist`` (counts
+    of cells ``first, first+1, ...``) below it; both sides keep at least one cell column."""
+    length = len(hist)
+    if length < 2:
+        return first + 1
+    target = hist.sum() * n_left / n_ranks
+    below = np.cumsum(hist)[:-1]  # particles left of the cut first + k, k = 1..length-1
+    k = int(np.argmin(np.abs(below - target))) + 1  # ties -> smallest k: deterministic
+    return first + k
+
+
+def _empty_cut(lo: np.ndarray, hi: np.ndarray, n_cells: np.ndarray, n_left: int, n_ranks: int):
+    """Split a box that holds no particle: the longest axis of its part of the domain,
+    proportionally to the rank counts (so a later particle still finds a sensible owner)."""
+    e_lo = np.maximum(lo, -1)
+    e_hi = np.minimum(hi, n_cells + 1)
+    length = e_hi - e_lo
+    axis = int(np.argmax(length))
+    if length[axis] >= 2:
+        k = int(np.clip(round(length[axis] * n_left / n_ranks), 1, length[axis] - 1))
+        return axis, int(e_lo[axis] + k)
+    return axis, int(np.clip(e_lo[axis] + 1, lo[axis], hi[axis]))
+
+
+def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
+                        reduce_max: Callable[[np.ndarray], np.ndarray],
+                        reduce_sum: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """Boxes of cells, one per rank, by recursive coordinate bisection weighted by particles.
+
+    The rank range of a box is split in two (``floor``/``ceil`` halves); the box is cut along
+    the longest axis of its particles' global extent, at the weighted quantile given by the
+    global histogram of particle cells along that axis. All boxes of one tree level share one
+    max-reduction (extents) and one sum-reduction (histograms), so the whole decomposition costs
+    ``2 ceil(log2 size)`` small collectives.
+
+    cells : (n, dim) int64 cells of this rank's particles.
+    reduce_max, reduce_sum : elementwise reductions of int64 arrays over all ranks.
+    Returns boxes (size, 2, dim) int64, ``boxes[r] = [lo, hi)``.
+    """
+    dim = cells.shape[1]
+    n_cells = np.asarray(n_cells, dtype=np.int64)
+    # Cells beyond the domain are clamped for the histograms only: every cut lies inside
+    # [0, n_cells], so a clamped cell falls on the same side of it as the true one.
+    cells = np.clip(cells, -1, n_cells)
+    boxes = np.empty((size, 2, dim), dtype=np.int64)
+    # Tree nodes of the current level: (first rank, end rank, lo, hi, particle index).
+    level = [(0, size, np.full(dim, -BIG, np.int64), np.full(dim, BIG, np.int64),
+              np.arange(len(cells)))]
+    while level:
+        for r0, r1, lo, hi, _ in level:
+            if r1 - r0 == 1:
+                boxes[r0, 0], boxes[r0, 1] = lo, hi
+        level = [node for node in level if node[1] - node[0] > 1]
+        if not level:
+            break
+        extents = np.full((len(level), 2, dim), _EMPTY, dtype=np.int64)
+        for i, (*_, index) in enumerate(level):
+            if len(index):
+                extents[i, 0] = -cells[index].min(axis=0)
+                extents[i, 1] = cells[index].max(axis=0)
+        extents = reduce_max(extents)
+        first, last = -extents[:, 0], extents[:, 1]
+        axes = np.argmax(last - first, axis=1)
+        lengths = np.where(last[:, 0] >= first[:, 0],
+                           last[np.arange(len(level)), axes] - first[np.arange(len(level)), axes]
+                           + 1, 0)
+        offsets = np.concatenate([[0], np.cumsum(lengths)])
+        hist = np.zeros(offsets[-1], dtype=np.int64)
+        for i, (*_, index) in enumerate(level):
+            if lengths[i] and len(index):
+                a = axes[i]
+                hist[offsets[i]:offsets[i + 1]] = np.bincount(
+                    cells[index, a] - first[i, a], minlength=lengths[i])
+        hist = reduce_sum(hist)
+        children = []
+        for i, (r0, r1, lo, hi, index) in enumerate(level):
+            n_left = (r1 - r0) // 2
+            if lengths[i]:
+                axis = int(axes[i])
+                cut = _choose_cut(hist[offsets[i]:offsets[i + 1]], int(first[i, axis]),
+                                  n_left, r1 - r0)
+            else:
+                axis, cut = _empty_cut(lo, hi, n_cells, n_left, r1 - r0)
+            left = cells[index, axis] < cut
+            lo_right, hi_left = lo.copy(), hi.copy()
+            hi_left[axis] = lo_right[axis] = cut
+            children.append((r0, r0 + n_left, lo, hi_left, index[left]))
+            children.append((r0 + n_left, r1, lo_right, hi, index[~left]))
+        level = children
+    return boxes
+
+
+def intersect(lo_a, hi_a, lo_b, hi_b):
+    """Intersection of boxes ``[lo, hi)`` (arrays broadcast); empty when any ``hi <= lo``."""
+    return np.maximum(lo_a, lo_b), np.minimum(hi_a, hi_b)
+
+
+def is_empty(lo, hi) -> bool:
+    return bool(np.any(np.asarray(hi) <= np.asarray(lo)))

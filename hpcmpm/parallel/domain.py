@@ -1,0 +1,300 @@
+"""The Domain: which particles and grid nodes a rank holds, and every exchange between ranks.
+
+Verbs only (STYLE.md "One MPI seam"): the time step calls ``grid_box``, ``sum_ghosts_to_owners``,
+``fill_ghosts``, ``migrate``; the scalar collectives come from `Communicator`. A 1-rank run goes
+through the same object; its exchanges have no neighbours and send nothing.
+
+Ownership (ARCHITECTURE.md): rank ``r`` owns the cells ``boxes[r] = [lo, hi)`` and the nodes with
+the same indices. A particle in cell ``c`` touches nodes ``c-1 .. c+2`` for both B-spline kernels,
+so a rank's support box is ``[min cell - 1, max cell + 3)``.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+
+from .comm import Communicator
+from .decomposition import (BIG, intersect, is_empty, owner_ranks, particle_cells,
+                            recursive_bisection)
+from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
+                       pack_region, pack_rows, region_size, region_slices, row_layout,
+                       unpack_region, unpack_rows)
+
+# Kernel support around a particle's cell, in nodes: 1 below, 2 above (quadratic and cubic).
+GHOST_BELOW, GHOST_ABOVE = 1, 2
+
+
+@dataclass
+class GridPlan:
+    """Who exchanges which node boxes this step; recomputed only when the gathered support
+    boxes or the decomposition change.
+
+    ``to_owners[k] = (r, lo, hi)``: nodes of rank ``r``'s owned box that my particles touch
+    (I send my partial sums there; ``fill_ghosts`` receives the owner's values there).
+    ``from_touchers[k] = (r, lo, hi)``: my owned nodes that rank ``r``'s particles touch.
+    """
+
+    key: bytes
+    block_lo: np.ndarray
+    block_hi: np.ndarray
+    to_owners: list = field(default_factory=list)
+    from_touchers: list = field(default_factory=list)
+
+
+class Domain(Communicator):
+    """Decomposition of the cell index space over the ranks, and the exchanges it implies.
+
+    Parameters
+    ----------
+    dim : 2 or 3.
+    dx : grid spacing.
+    domain_lo, domain_hi : corners of the domain box (dim,).
+    comm : an mpi4py communicator or a `Communicator` (``COMM_WORLD`` by default).
+    """
+
+    def __init__(self, dim: int, dx: float, domain_lo, domain_hi, comm=None):
+        super().__init__(comm.comm if isinstance(comm, Communicator) else comm)
+        self.dim = int(dim)
+        self.dx = float(dx)
+        self.inv_dx = 1.0 / self.dx
+        self.domain_lo = np.asarray(domain_lo, dtype=np.float64).reshape(self.dim)
+        self.domain_hi = np.asarray(domain_hi, dtype=np.float64).reshape(self.dim)
+        self.n_cells = np.round((self.domain_hi - self.domain_lo) / self.dx).astype(np.int64)
+        self._plan: GridPlan | None = None
+        # Until the first `decompose`, split the domain evenly (no particles: purely local).
+        empty = np.empty((0, self.dim), dtype=np.int64)
+        self.set_boxes(recursive_bisection(empty, self.size, self.n_cells,
+                                           lambda a: a, lambda a: a))
+
+    # -- decomposition ------------------------------------------------------------------------
+    def decompose(self, particles) -> None:
+        """Recursive coordinate bisection of the cells weighted by the particles on all ranks,
+        then migrate every particle to its owner. Collective and deterministic."""
+        cells = particle_cells(particles["x"], self.domain_lo, self.inv_dx)
+        boxes = recursive_bisection(cells, self.size, self.n_cells,
+                                    self._reduce_max, self._reduce_sum)
+        self.set_boxes(boxes)
+        self.migrate(particles)
+
+    def set_boxes(self, boxes: np.ndarray) -> None:
+        """Adopt a decomposition (e.g. the one a checkpoint recorded): (size, 2, dim) cells."""
+        boxes = np.array(boxes, dtype=np.int64)
+        if boxes.shape != (self.size, 2, self.dim):
+            raise ValueError(f"boxes must have shape {(self.size, 2, self.dim)} for {self.size} "
+                             f"rank(s) in {self.dim}D, got {boxes.shape}")
+        self.boxes = boxes
+        self._plan = None
+
+    @property
+    def owned_lo(self) -> np.ndarray:
+        return self.boxes[self.rank, 0]
+
+    @property
+    def owned_hi(self) -> np.ndarray:
+        return self.boxes[self.rank, 1]
+
+    def owners(self, x: np.ndarray) -> np.ndarray:
+        """Owning rank of each position x (n, dim)."""
+        out = np.empty(len(x), dtype=np.int64)
+        return owner_ranks(np.ascontiguousarray(x, dtype=np.float64), self.domain_lo,
+                           self.inv_dx, self.boxes, self.rank, out)
+
+    def _reduce_max(self, a: np.ndarray) -> np.ndarray:
+        out = np.empty_like(a)
+        self.comm.Allreduce(np.ascontiguousarray(a), out, op=MPI.MAX)
+        return out
+
+    def _reduce_sum(self, a: np.ndarray) -> np.ndarray:
+        out = np.empty_like(a)
+        self.comm.Allreduce(np.ascontiguousarray(a), out, op=MPI.SUM)
+        return out
+
+    # -- particles ----------------------------------------------------------------------------
+    def migrate(self, particles) -> int:
+        """Send every field of every particle whose owner changed to its owner (any rank, not
+        just face neighbours); received particles are appended. Returns the number sent."""
+        if self.size == 1:
+            return 0
+        owner = self.owners(particles["x"])
+        leaving = np.flatnonzero(owner != self.rank)
+        order = leaving[np.argsort(owner[leaving], kind="stable")]
+        send_counts = np.bincount(owner[order], minlength=self.size).astype(np.int64)
+        recv_counts = np.empty(self.size, dtype=np.int64)
+        self.comm.Alltoall(send_counts, recv_counts)
+        if not len(order) and not recv_counts.any():
+            return 0
+        arrays = {name: particles[name] for name in particles.field_names()}
+        layout = row_layout(arrays)
+        send = pack_rows(arrays, order, layout)
+        recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_MIGRATE)
+        if len(order):
+            stay = np.ones(particles.n, dtype=bool)
+            stay[order] = False
+            particles.keep(stay)
+        if len(recv):
+            particles.append(unpack_rows(recv, layout))
+        return int(len(order))
+
+    def global_count(self, particles) -> int:
+        return int(self.sum(int(particles.n)))
+
+    def particle_halo(self, particles, r: float, names) -> dict[str, np.ndarray]:
+        """Read-only copies of other ranks' particles within ``r`` of my owned region (its box in
+        physical coordinates, expanded by ``r``), for the fields ``names``.
+
+        Neighbours are the ranks whose expanded box meets mine; the test is symmetric, so both
+        sides agree on who talks to whom and the counts go point-to-point too."""
+        names = list(names)
+        arrays = {name: particles[name] for name in names}
+        layout = row_layout(arrays)
+        lo = self.domain_lo + self.boxes[:, 0].astype(np.float64) * self.dx
+        hi = self.domain_lo + self.boxes[:, 1].astype(np.float64) * self.dx
+        me = self.rank
+        gap = np.maximum(lo - hi[me], lo[me] - hi).max(axis=1)
+        neighbours = [q for q in np.flatnonzero(gap <= r) if q != me]
+        x = particles["x"]
+        send_counts = np.zeros(self.size, dtype=np.int64)
+        picked = []
+        for q in neighbours:
+            inside = np.all((x >= lo[q] - r) & (x <= hi[q] + r), axis=1)
+            index = np.flatnonzero(inside)
+            send_counts[q] = len(index)
+            picked.append(index)
+        recv_counts = np.zeros(self.size, dtype=np.int64)
+        requests = [self.comm.Irecv(recv_counts[q:q + 1], source=q, tag=TAG_HALO_COUNT)
+                    for q in neighbours]
+        requests += [self.comm.Isend(send_counts[q:q + 1], dest=q, tag=TAG_HALO_COUNT)
+                     for q in neighbours]
+        MPI.Request.Waitall(requests)
+        index = np.concatenate(picked) if picked else np.empty(0, dtype=np.int64)
+        send = pack_rows(arrays, index, layout)
+        recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_HALO)
+        return unpack_rows(recv, layout)
+
+    # -- load balance -------------------------------------------------------------------------
+    def imbalance(self, particles) -> float:
+        """max / mean particle count over ranks (1.0 when there are no particles)."""
+        counts = np.asarray(self.allgather(int(particles.n)), dtype=np.float64)
+        mean = counts.mean()
+        return float(counts.max() / mean) if mean > 0 else 1.0
+
+    def rebalance(self, particles, threshold: float = 1.2) -> bool:
+        """Recompute the bisection and migrate when ``imbalance > threshold``. Every rank takes
+        the same branch (the imbalance is global). Only moves particles, so results change by
+        round-off at most (summation order of the grid halo)."""
+        if self.size == 1 or self.imbalance(particles) <= threshold:
+            return False
+        self.decompose(particles)
+        return True
+
+    # -- grid ---------------------------------------------------------------------------------
+    def grid_box(self, particles, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+        """Node box ``(lo, hi)`` this rank's GridBlock must hold: the support of its particles
+        plus the owned nodes that other ranks' particles touch (empty, ``lo == hi``, when
+        neither exists). Gathers every rank's support box (2*dim ints each) and refreshes the
+        exchange plan when they changed. ``order`` is accepted for both kernels: the support
+        (cell - 1 .. cell + 2) is the same."""
+        support = np.zeros((2, self.dim), dtype=np.int64)
+        if particles.n:
+            cells = particle_cells(particles["x"], self.domain_lo, self.inv_dx)
+            support[0] = cells.min(axis=0) - GHOST_BELOW
+            support[1] = cells.max(axis=0) + GHOST_ABOVE + 1
+        supports = np.empty((self.size, 2, self.dim), dtype=np.int64)
+        self.comm.Allgather(support, supports)
+        key = supports.tobytes()
+        if self._plan is None or self._plan.key != key:
+            self._plan = self._grid_plan(supports, key)
+        return self._plan.block_lo.copy(), self._plan.block_hi.copy()
+
+    def _grid_plan(self, supports: np.ndarray, key: bytes) -> GridPlan:
+        me = self.rank
+        own_lo, own_hi = self.boxes[me]
+        to_owners, from_touchers = [], []
+        parts = []
+        if not is_empty(*supports[me]):
+            parts.append(supports[me])
+        for r in range(self.size):
+            if r == me:
+                continue
+            lo, hi = intersect(*supports[me], *self.boxes[r])
+            if not is_empty(lo, hi):
+                to_owners.append((r, lo, hi))
+            lo, hi = intersect(*supports[r], own_lo, own_hi)
+            if not is_empty(lo, hi):
+                from_touchers.append((r, lo, hi))
+                parts.append((lo, hi))
+        if parts:
+            block_lo = np.min([p[0] for p in parts], axis=0)
+            block_hi = np.max([p[1] for p in parts], axis=0)
+        else:
+            block_lo = block_hi = np.zeros(self.dim, dtype=np.int64)
+        return GridPlan(key, block_lo, block_hi, to_owners, from_touchers)
+
+    def _require_plan(self) -> GridPlan:
+        if self._plan is None:
+            raise RuntimeError("call domain.grid_box(particles, order) before a grid exchange")
+        return self._plan
+
+    def _exchange_regions(self, grid, names, sends, recvs, tag: int, add: bool) -> None:
+        fields = [grid[name] for name in names]
+        requests, received = [], []
+        for r, lo, hi in recvs:
+            slices = region_slices(lo, hi, grid.origin, grid.shape)
+            buf = np.empty(region_size(fields, slices), dtype=np.float64)
+            requests.append(self.comm.Irecv(buf, source=r, tag=tag))
+            received.append((slices, buf))
+        for r, lo, hi in sends:
+            slices = region_slices(lo, hi, grid.origin, grid.shape)
+            buf = np.empty(region_size(fields, slices), dtype=np.float64)
+            pack_region(fields, slices, buf)
+            requests.append(self.comm.Isend(buf, dest=r, tag=tag))
+        MPI.Request.Waitall(requests)
+        for slices, buf in received:  # in rank order: a deterministic summation order
+            unpack_region(fields, slices, buf, add)
+
+    def sum_ghosts_to_owners(self, grid, *names: str) -> None:
+        """After P2G: each rank sends its partial sums on nodes owned by others to the owners,
+        which add them. Several fields travel in one message per neighbour."""
+        plan = self._require_plan()
+        self._exchange_regions(grid, names, plan.to_owners, plan.from_touchers, TAG_SUM, True)
+
+    def fill_ghosts(self, grid, *names: str) -> None:
+        """After the grid update: owners send the final values of the nodes other ranks'
+        particles touch; those ranks overwrite their ghost copies."""
+        plan = self._require_plan()
+        self._exchange_regions(grid, names, plan.from_touchers, plan.to_owners, TAG_FILL, False)
+
+    def owned_slices(self, grid) -> tuple:
+        """Slices of the block (``grid.lo .. grid.hi``) that this rank owns."""
+        lo, hi = intersect(np.asarray(grid.lo), np.asarray(grid.hi), *self.boxes[self.rank])
+        hi = np.maximum(hi, lo)
+        return tuple(slice(int(l - o), int(h - o)) for l, h, o in zip(lo, hi, grid.origin))
+
+    def dot(self, grid, a: str, b: str) -> float:
+        """sum over owned nodes of a . b (scalar or vector fields), reduced over ranks."""
+        s = self.owned_slices(grid)
+        return float(self.sum(float(np.vdot(grid[a][s], grid[b][s]))))
+
+    # -- failure ------------------------------------------------------------------------------
+    def install_abort_hook(self) -> None:
+        """Make an uncaught exception on any rank abort all ranks (after printing it), instead
+        of leaving the others waiting in a collective forever. No-op on one rank."""
+        if self.size == 1:
+            return
+        previous = sys.excepthook
+        comm = self.comm
+
+        def abort_on_exception(exc_type, exc, tb):
+            previous(exc_type, exc, tb)
+            sys.stderr.flush()
+            sys.stdout.flush()
+            comm.Abort(1)
+
+        sys.excepthook = abort_on_exception
+
+
+__all__ = ["Domain", "GridPlan", "BIG"]

@@ -1,0 +1,107 @@
+"""Grid halo: after `sum_ghosts_to_owners` every owned node holds the one-process sum; after
+`fill_ghosts` every node a rank's particles touch holds the owner's value; `dot` counts each
+node once. 4 ranks in 2D make a 2x2 bisection (diagonal neighbours); 3D too."""
+
+import numpy as np
+import pytest
+
+from hpcmpm.parallel import Domain
+from mpi_helpers import block_grid, cloud, deposit, particle_set, reference_grid, strided_share
+
+CASES = {2: dict(dx=1.0 / 16, n=1500), 3: dict(dx=1.0 / 8, n=800)}
+
+
+def scattered_grid(dim):
+    case = CASES[dim]
+    domain = Domain(dim, case["dx"], np.zeros(dim), np.ones(dim))
+    # A cloud slightly larger than the domain: nodes beyond the walls get exchanged as well.
+    values = cloud(dim, case["n"], seed=dim, lo=-0.02, hi=1.02)
+    p = particle_set(dim, values, strided_share(values, domain))
+    domain.decompose(p)
+    grid = block_grid(domain, p)
+    m, mom, touched = deposit(p["x"], p["id"], p["mass"], p["v"], domain.domain_lo, domain.dx,
+                              grid.origin, grid.shape)
+    grid["mass"][...] = m
+    grid["momentum"][...] = mom
+    return domain, values, p, grid, touched
+
+
+def reference_on_block(values, domain, grid):
+    origin, m, mom = reference_grid(values, domain)
+    s = tuple(slice(int(o - r), int(o - r) + n) for o, r, n in zip(grid.origin, origin, grid.shape))
+    return m[s], mom[s], float(np.sum(m * m)), float(np.sum(mom * mom))
+
+
+def owned_mask(domain, grid):
+    mask = np.zeros(grid.shape, dtype=bool)
+    mask[domain.owned_slices(grid)] = True
+    return mask
+
+
+@pytest.mark.parallel(ranks=[1, 2, 4])
+def test_sum_then_fill_equals_one_process():
+    # Both dimensions in one launch: an mpiexec start costs more than the checks.
+    for dim in (2, 3):
+        check_sum_then_fill_equals_one_process(dim)
+
+
+def check_sum_then_fill_equals_one_process(dim):
+    domain, values, p, grid, touched = scattered_grid(dim)
+    ref_m, ref_mom, ref_mm, ref_pp = reference_on_block(values, domain, grid)
+
+    # Momentum sums signed terms: the summation order changes the last bits of near-cancelling
+    # nodes, so the absolute tolerance is set by the largest value.
+    scale = 1e-13 * np.abs(ref_mom).max()
+    domain.sum_ghosts_to_owners(grid, "mass", "momentum")
+    owned = owned_mask(domain, grid)
+    np.testing.assert_allclose(grid["mass"][owned], ref_m[owned], rtol=1e-13, atol=0)
+    np.testing.assert_allclose(grid["momentum"][owned], ref_mom[owned], rtol=1e-13, atol=scale)
+    # No contribution lost: the owned parts of all blocks add up to the whole reference grid.
+    assert domain.dot(grid, "mass", "mass") == pytest.approx(ref_mm, rel=1e-12)
+    assert domain.dot(grid, "momentum", "momentum") == pytest.approx(ref_pp, rel=1e-12)
+
+    # Poison every ghost node, then let the owners refill what this rank's particles touch.
+    grid["mass"][~owned] = np.nan
+    grid["momentum"][~owned] = np.nan
+    domain.fill_ghosts(grid, "mass", "momentum")
+    np.testing.assert_allclose(grid["mass"][touched], ref_m[touched], rtol=1e-13, atol=0)
+    np.testing.assert_allclose(grid["momentum"][touched], ref_mom[touched], rtol=1e-13, atol=scale)
+    assert domain.global_count(p) == len(values["id"])
+
+
+@pytest.mark.parallel(ranks=[1, 4])
+def test_block_box_is_support_plus_touched_owned_nodes():
+    """The block holds exactly what is needed: its own particles' support and the owned nodes
+    other ranks touch, nothing more (checked against the union of all ranks' supports)."""
+    dim = 2
+    domain, values, p, grid, touched = scattered_grid(dim)
+    lo, hi = domain.grid_box(p, 3)
+    cells = np.floor((values["x"] - domain.domain_lo) / domain.dx).astype(np.int64)
+    owner = domain.owners(values["x"])
+    mine = owner == domain.rank
+    need_lo, need_hi = cells[mine].min(axis=0) - 1, cells[mine].max(axis=0) + 3
+    own_lo, own_hi = domain.boxes[domain.rank]
+    for r in set(owner.tolist()) - {domain.rank}:
+        s_lo = cells[owner == r].min(axis=0) - 1
+        s_hi = cells[owner == r].max(axis=0) + 3
+        i_lo, i_hi = np.maximum(s_lo, own_lo), np.minimum(s_hi, own_hi)
+        if np.all(i_hi > i_lo):
+            need_lo, need_hi = np.minimum(need_lo, i_lo), np.maximum(need_hi, i_hi)
+    np.testing.assert_array_equal(lo, need_lo)
+    np.testing.assert_array_equal(hi, need_hi)
+
+
+@pytest.mark.parallel(ranks=[2])
+def test_rank_without_particles_has_an_empty_block():
+    dim = 2
+    domain = Domain(dim, 0.1, np.zeros(dim), np.ones(dim))
+    values = cloud(dim, 50, seed=5, lo=0.0, hi=0.3)  # all in the first rank's half
+    p = particle_set(dim, values, strided_share(values, domain))
+    domain.migrate(p)  # the initial even split: rank 1 (x >= 0.5) gets nothing
+    lo, hi = domain.grid_box(p, 2)
+    owners = set(domain.owners(values["x"]).tolist())
+    assert np.all(hi > lo) == (domain.rank in owners)
+    grid = block_grid(domain, p)
+    grid["mass"][...] = 1.0
+    domain.sum_ghosts_to_owners(grid, "mass")
+    domain.fill_ghosts(grid, "mass")

@@ -1,0 +1,93 @@
+"""Migration: particles that cross a face, a corner (diagonal neighbour) or jump over whole
+blocks arrive at their owner with every field intact (an extra tensor and an int field too),
+and the global count is conserved."""
+
+import numpy as np
+import pytest
+
+from hpcmpm.parallel import Domain
+from mpi_helpers import cloud, gather_by_id, particle_set, strided_share, with_fields_of_id
+
+
+def moved_positions(ids, x, dim):
+    """New positions, a function of id: a third of the particles take a small step (faces and
+    corners), the rest jump anywhere, some beyond the walls (the outer boxes are unbounded)."""
+    rng = np.random.default_rng(len(ids))
+    jump = rng.uniform(-0.3, 1.3, size=x.shape)
+    step = x + np.where((ids % 2)[:, None] == 0, 0.07, -0.07)
+    return np.where((ids % 3 == 0)[:, None], step, jump)
+
+
+@pytest.mark.parallel(ranks=[1, 2, 4])
+def test_every_field_arrives_by_id():
+    # Both dimensions in one launch: an mpiexec start costs more than the checks.
+    for dim in (2, 3):
+        check_every_field_arrives_by_id(dim)
+
+
+def check_every_field_arrives_by_id(dim):
+    domain = Domain(dim, 1.0 / 16, np.zeros(dim), np.ones(dim))
+    values = cloud(dim, 1200, seed=11 + dim)
+    # Start with everything on rank 0, as a serial reader would leave it.
+    p = particle_set(dim, values, None if domain.rank == 0 else np.arange(0))
+    domain.decompose(p)
+    assert np.all(domain.owners(p["x"]) == domain.rank)
+
+    old_owner = domain.owners(values["x"])
+    moved = with_fields_of_id(values["id"], moved_positions(values["id"], values["x"], dim))
+    new = _by_id(moved, p["id"])
+    for name in p.field_names():
+        p[name][...] = new[name]
+    sent = domain.migrate(p)
+
+    assert np.all(domain.owners(p["x"]) == domain.rank)
+    assert domain.global_count(p) == len(values["id"])
+    everything = gather_by_id(domain, p)
+    for name in p.field_names():
+        assert everything[name].dtype == moved[name].dtype, name
+        np.testing.assert_array_equal(everything[name], moved[name], err_msg=name)
+    # The moves really crossed faces, corners and several blocks: count them from the boxes.
+    new_owner = domain.owners(moved["x"])
+    assert domain.sum(sent) == int(np.sum(new_owner != old_owner))
+    assert np.any(new_owner != old_owner) == (domain.size > 1)
+
+
+def _by_id(values, ids):
+    index = np.searchsorted(values["id"], ids)
+    return {k: v[index] for k, v in values.items()}
+
+
+@pytest.mark.parallel(ranks=[4])
+def test_corner_and_far_jumps_in_a_2x2_split():
+    # Both dimensions in one launch: an mpiexec start costs more than the checks.
+    for dim in (2, 3):
+        check_corner_and_far_jumps_in_a_2x2_split(dim)
+
+
+def check_corner_and_far_jumps_in_a_2x2_split(dim):
+    """In a 2x2 (x 1) split, each rank sends one particle to every other rank: to its face
+    neighbours, to the diagonal one through the shared corner, and to the far side."""
+    domain = Domain(dim, 1.0 / 8, np.zeros(dim), np.ones(dim))
+    values = cloud(dim, 4000, seed=3)
+    p = particle_set(dim, values, strided_share(values, domain))
+    domain.decompose(p)
+    lo = domain.domain_lo + np.clip(domain.boxes[:, 0], 0, domain.n_cells) * domain.dx
+    hi = domain.domain_lo + np.clip(domain.boxes[:, 1], 0, domain.n_cells) * domain.dx
+    centres = 0.5 * (lo + hi)
+    # Move one particle of mine into every other rank's box (just across the corner for the
+    # diagonal neighbour: the corner point of the two boxes, nudged inside the target box).
+    targets = [r for r in range(domain.size) if r != domain.rank]
+    me = centres[domain.rank]
+    for k, r in enumerate(targets):
+        corner = np.where(centres[r] > me, lo[r], hi[r])
+        p["x"][k] = np.where(np.isclose(centres[r], me), centres[r],
+                             corner + 1e-3 * np.sign(centres[r] - me))
+    moved_ids = domain.allgather(p["id"][:len(targets)].copy())
+    sent = domain.migrate(p)
+    assert sent == len(targets)
+    arrived = set(p["id"].tolist())
+    for r, ids in enumerate(moved_ids):
+        if r != domain.rank:  # rank r sent its k-th particle to the k-th rank other than r
+            assert ids[[q for q in range(domain.size) if q != r].index(domain.rank)] in arrived
+    assert np.all(domain.owners(p["x"]) == domain.rank)
+    assert domain.global_count(p) == len(values["id"])
