@@ -70,8 +70,12 @@ assert h5py.get_config().mpi, "h5py was built without MPI"
 print("[setup_parallel_hdf5] h5py", h5py.__version__, "mpi:", h5py.get_config().mpi,
       "| MPI:", MPI.Get_library_version().splitlines()[0])
 EOF
-# mpiexec.mpich as `mpiexec` inside the venv, so `. scripts/env.sh` picks the matching launcher.
-ln -sf "$(command -v mpiexec.mpich)" "$venv/bin/mpiexec"
+# `mpiexec` inside the venv runs Debian's mpiexec.mpich, so `. scripts/env.sh` picks the
+# launcher that matches the libraries. A wrapper, not a symlink: hydra looks for its
+# hydra_pmi_proxy next to the path it was started from.
+rm -f "$venv/bin/mpiexec"
+printf '#!/bin/sh\nexec %s "$@"\n' "$(command -v mpiexec.mpich)" > "$venv/bin/mpiexec"
+chmod +x "$venv/bin/mpiexec"
 
 echo "[setup_parallel_hdf5] ready in $((SECONDS - t0)) s: $venv"
 cat <<EOF
