@@ -91,14 +91,20 @@ def _run_under_mpi(item, n_ranks: int) -> None:
     nodeid = item.nodeid
     cmd = [_mpiexec(), "-n", str(n_ranks), sys.executable, "-m", "mpi4py", "-m", "pytest",
            nodeid, "-q", "-x", "--no-header", "-p", "no:cacheprovider",
-           f"--timeout={max(10, int(MPI_TIMEOUT) - 20)}", "--rootdir", str(ROOT)]
+           f"--timeout={max(10, int(MPI_TIMEOUT) - 20)}",
+           # A rank stuck inside an MPI call never returns to Python, where a SIGALRM would
+           # be handled: the thread method dumps the stacks and exits from a watchdog thread.
+           "--timeout-method=thread", "--rootdir", str(ROOT)]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         out, _ = proc.communicate(timeout=MPI_TIMEOUT)
+        timed_out = False
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)  # the launcher and the ranks it started
         out, _ = proc.communicate()
+        timed_out = True
+    if timed_out:
         pytest.fail(f"{nodeid} on {n_ranks} ranks did not finish in {MPI_TIMEOUT:.0f} s "
                     f"(deadlock?)\n{out[-12000:]}", pytrace=False)
     if proc.returncode != 0:
