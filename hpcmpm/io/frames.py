@@ -15,8 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from .shared import (DEFAULT_CHUNK_BYTES, SharedFile, attr_value, gather_by_id, resolve_mode,
-                     tmp_name)
+from .shared import DEFAULT_CHUNK_BYTES, SharedFile, attr_value, gather_by_id, resolve_mode
 from .xdmf import FrameCatalog
 
 # Frame dataset name -> ParticleSet field. `material` is the group (material index).
@@ -117,9 +116,9 @@ class FrameWriter:
 
     def _fill(self, out: SharedFile, dsets, ids, rows, n_total) -> None:
         everything = {"id": ids, **rows}
-        if self.mode == "mpio" and _dense(self.domain, ids, n_total):
-            # Ids 0..N-1 (any offset): row = id - min, each rank writes its runs in place.
-            first = self.domain.min(int(ids[0]) if len(ids) else np.iinfo(np.int64).max)
+        dense, first = _dense(self.domain, ids, n_total)
+        if self.mode == "mpio" and dense:
+            # Ids first..first+N-1: row = id - first, each rank writes its runs in place.
             starts, counts = _runs(ids - first)
             for name, arr in everything.items():
                 out.write_runs(dsets[name], starts, counts, arr)
@@ -144,11 +143,12 @@ class FrameWriter:
         gather_by_id(self.domain, ids, everything, self.chunk_bytes, sink)
 
 
-def _dense(domain, ids: np.ndarray, n_total: int) -> bool:
-    """Ids are unique (a ParticleSet invariant), so max - min + 1 == N means exactly min..max."""
+def _dense(domain, ids: np.ndarray, n_total: int) -> tuple[bool, int]:
+    """(whether the ids are exactly min..max, min). Ids are unique (a ParticleSet invariant),
+    so max - min + 1 == N says it."""
     lo = domain.min(int(ids[0]) if len(ids) else np.iinfo(np.int64).max)
     hi = domain.max(int(ids[-1]) if len(ids) else np.iinfo(np.int64).min)
-    return n_total == 0 or hi - lo + 1 == n_total
+    return n_total == 0 or hi - lo + 1 == n_total, lo
 
 
 def _runs(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -171,4 +171,4 @@ def read_frame(path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     return data, attrs
 
 
-__all__ = ["FrameWriter", "frame_name", "read_frame", "tmp_name"]
+__all__ = ["FrameWriter", "frame_name", "read_frame"]

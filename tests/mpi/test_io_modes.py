@@ -47,20 +47,22 @@ def global_values(dim: int, gaps: bool) -> dict:
             "flag": rng.random(N) < 0.3}
 
 
-def local_particles(comm, dim: int, gaps: bool = False) -> ParticleSet:
-    """A strided share of the global set; the last rank holds nothing when size > 1."""
+def local_particles(comm, dim: int, gaps: bool = False, empty_last: bool = True) -> ParticleSet:
+    """A strided share of the global set (every id its own run of rows: more runs than one
+    mpio write takes); with ``empty_last`` the last rank holds nothing when size > 1."""
     values = global_values(dim, gaps)
-    holders = max(1, comm.size - 1)
+    holders = max(1, comm.size - 1) if empty_last else comm.size
     mine = (np.arange(N) % holders == comm.rank) if comm.rank < holders else np.zeros(N, bool)
     p = ParticleSet(dim, {"Jp": FieldSpec(), "flag": FieldSpec("scalar", "?", False)})
     p.append({k: v[mine] for k, v in values.items()})
     return p
 
 
-def write_frame(comm, folder: Path, mode: str, dim: int, gaps: bool = False) -> Path:
+def write_frame(comm, folder: Path, mode: str, dim: int, gaps: bool = False,
+                empty_last: bool = True) -> Path:
     writer = FrameWriter(folder, comm, "name = 'modes'\n", dim, ["Jp"], {"restart_chain": []},
                          mode=mode, chunk_bytes=50_000)
-    return writer.write(local_particles(comm, dim, gaps), 0.5, 12)
+    return writer.write(local_particles(comm, dim, gaps, empty_last), 0.5, 12)
 
 
 def check_frame(path: Path, dim: int, gaps: bool) -> dict:
@@ -77,8 +79,9 @@ def check_frame(path: Path, dim: int, gaps: bool) -> dict:
 
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("gaps", [False, True])
-def test_serial_mode_frame(comm, shared_dir, dim, gaps):
-    path = write_frame(comm, shared_dir, "serial", dim, gaps)
+@pytest.mark.parametrize("empty_last", [True, False])
+def test_serial_mode_frame(comm, shared_dir, dim, gaps, empty_last):
+    path = write_frame(comm, shared_dir, "serial", dim, gaps, empty_last)
     if comm.rank == 0:
         check_frame(path, dim, gaps)
     comm.barrier()
@@ -87,9 +90,10 @@ def test_serial_mode_frame(comm, shared_dir, dim, gaps):
 @needs_mpio
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("gaps", [False, True])
-def test_mpio_frame_equals_serial_frame(comm, shared_dir, dim, gaps):
-    serial = write_frame(comm, shared_dir / "serial", "serial", dim, gaps)
-    mpio = write_frame(comm, shared_dir / "mpio", "mpio", dim, gaps)
+@pytest.mark.parametrize("empty_last", [True, False])
+def test_mpio_frame_equals_serial_frame(comm, shared_dir, dim, gaps, empty_last):
+    serial = write_frame(comm, shared_dir / "serial", "serial", dim, gaps, empty_last)
+    mpio = write_frame(comm, shared_dir / "mpio", "mpio", dim, gaps, empty_last)
     if comm.rank == 0:
         a, b = check_frame(serial, dim, gaps), check_frame(mpio, dim, gaps)
         assert sorted(a) == sorted(b)
