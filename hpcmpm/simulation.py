@@ -11,7 +11,7 @@ import logging
 
 import numpy as np
 
-from .boundaries import build_boundaries
+from .boundaries import build_boundaries, build_prescribed
 from .errors import InstabilityError
 from .kernels.grid import update_velocity
 from .kernels.particles import (cell_sort_keys, counting_sort_order,
@@ -51,13 +51,16 @@ class Simulation:
         self.gravity[: self.dim] = scene.gravity
         self.materials = [make_material(spec, self.dim) for spec in scene.materials]
         self.boundaries = build_boundaries(scene)
+        self.prescribed = build_prescribed(scene)
         self.particles = particles if particles is not None else ParticleSet(
             self.dim, self.particle_fields())
         self.grid = GridBlock(self.dim, self.dx, self.domain_lo)
-        self._scattered = ["mass", "momentum"] + (["impulse"] if self.split_force else [])
+        self._scattered = ["mass", "momentum"] + (["impulse"] if self.split_force else []) + \
+            [s.mark_field for s in self.prescribed]
         self._gathered = ["velocity"] + (["velocity_old"] if self.scheme == FLIP else [])
         for name in self._scattered + self._gathered:
-            self.grid.declare(name, SCALAR if name == "mass" else VECTOR)
+            scalar = name == "mass" or name.startswith("prescribed_")
+            self.grid.declare(name, SCALAR if scalar else VECTOR)
         self._dummy_vector = np.zeros((1,) * self.dim + (self.dim,))
         self._dummy_C = np.zeros((1, self.dim, self.dim))
         self._bad = np.empty(MAX_REPORTED, dtype=np.int64)
@@ -158,6 +161,8 @@ class Simulation:
             p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p["mass"], p["vol0"],
             p["tau"], self.scheme, self.order, self.dinv_factor, self.dx, self.domain_lo,
             grid.origin, dt, self.split_force, grid["mass"], grid["momentum"], impulse)
+        for clamp in self.prescribed:
+            clamp.scatter(p, grid, self.order)
 
     def update_grid(self, dt: float) -> None:
         grid = self.grid
@@ -172,6 +177,8 @@ class Simulation:
         for condition in self.boundaries:
             condition.apply(velocity, grid.origin, self.dx, self.domain_lo, self.time, dt,
                             grid["mass"])
+        for clamp in self.prescribed:  # last: a clamp wins over walls and colliders
+            clamp.apply(velocity, grid.origin, self.dx, self.domain_lo, self.time, dt, grid)
 
     def gather(self, dt: float) -> None:
         p, grid = self.particles, self.grid
