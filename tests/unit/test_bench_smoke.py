@@ -1,0 +1,116 @@
+"""Smoke runs of every benchmark script (tiny scenes, a few steps): each runs, writes its JSON,
+and reports finite numbers. No timing is asserted; the real numbers are in BENCHMARKS.md."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPTS = REPO / "scripts"
+HAS_TAICHI = importlib.util.find_spec("taichi") is not None
+NO_TAICHI = "taichi not installed (pip install -e '.[bench]')"
+
+
+def run_script(name: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    env.setdefault("NUMBA_CACHE_DIR", str(REPO / ".numba_cache"))
+    result = subprocess.run([sys.executable, str(SCRIPTS / name), *args], cwd=REPO, env=env,
+                            capture_output=True, text=True, timeout=timeout)
+    assert result.returncode == 0, f"{name} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
+    return result
+
+
+def numbers(obj):
+    """Every int/float inside a JSON document."""
+    if isinstance(obj, bool):
+        return
+    if isinstance(obj, (int, float)):
+        yield obj
+    elif isinstance(obj, dict):
+        for v in obj.values():
+            yield from numbers(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from numbers(v)
+
+
+def load_finite(path: Path) -> dict:
+    assert path.exists(), f"{path} not written"
+    doc = json.loads(path.read_text())
+    values = list(numbers(doc["results"] if "results" in doc else doc["runs"]))
+    assert values and all(math.isfinite(v) for v in values)
+    return doc
+
+
+@pytest.mark.skipif(not HAS_TAICHI, reason=NO_TAICHI)
+def test_peer_smoke(tmp_path):
+    run_script("bench_peer.py", "--smoke", "--reps", "2", "--steps", "3", "--out", str(tmp_path))
+    doc = load_finite(tmp_path / "peer.json")
+    assert [r["scene"] for r in doc["results"]] == ["a", "a_fc", "b"]
+    for r in doc["results"]:
+        assert r["ratio_hpcmpm_over_peer_min"] > 0
+        # Same particles, step and walls: the two codes must agree closely.
+        assert r["max_position_difference_cells"] < 0.05
+
+
+def test_ceiling_smoke(tmp_path):
+    run_script("bench_ceiling.py", "--smoke", "--reps", "2", "--steps", "3", "--out",
+               str(tmp_path))
+    doc = load_finite(tmp_path / "ceiling.json")
+    assert {r["scene"] for r in doc["results"]} == {"a", "a_fc", "b"}
+    for r in doc["results"]:
+        assert set(r["hpcmpm_phases_ms_per_step"]) >= {"sort", "stress", "p2g", "grid", "g2p"}
+
+
+@pytest.mark.skipif(shutil.which("mpiexec", path=str(Path(sys.executable).parent)
+                                 + os.pathsep + os.environ.get("PATH", "")) is None,
+                    reason="mpiexec not found")
+def test_parallel_smoke(tmp_path):
+    run_script("bench_parallel.py", "--smoke", "--reps", "2", "--steps", "2", "--rounds", "1",
+               "--timeout", "120", "--out", str(tmp_path), *([] if HAS_TAICHI else ["--no-peer"]))
+    doc = load_finite(tmp_path / "parallel.json")
+    assert {"hpcmpm_1", "hpcmpm_2"} <= set(doc["runs"])
+    assert doc["runs"]["hpcmpm_2"]["particles_per_rank"][0] > 0
+    assert 0 < doc["efficiency"]["hpcmpm"]["efficiency_median"]
+
+
+def test_memory_smoke(tmp_path):
+    run_script("bench_memory.py", "--smoke", "--cases", "2d_elastic", "3d_snow", "--out",
+               str(tmp_path))
+    doc = load_finite(tmp_path / "memory.json")
+    for r in doc["results"]:
+        # Peak RSS of a few thousand particles is within the allocator's noise: only its
+        # presence is checked here.
+        assert r["nbytes_per_particle"] > 0 and "rss_bytes_per_particle" in r
+
+
+def test_startup_smoke(tmp_path):
+    run_script("bench_startup.py", "--smoke", "--scenes", "a", "--warm-runs", "1", "--out",
+               str(tmp_path))
+    doc = load_finite(tmp_path / "startup.json")
+    r = doc["results"][0]
+    assert 0 < r["warm_to_first_step_s"] and 0 < r["cold_to_first_step_s"]
+
+
+def test_bench_command_dispatches(tmp_path):
+    from types import SimpleNamespace
+
+    from hpcmpm.bench import bench_command
+    from hpcmpm.errors import HpcmpmError
+
+    assert bench_command(SimpleNamespace(bench_args=["--help"])) == 0
+    with pytest.raises(HpcmpmError, match="unknown benchmark"):
+        bench_command(SimpleNamespace(bench_args=["nonsense"]))
+    code = bench_command(SimpleNamespace(bench_args=[
+        "ceiling", "--smoke", "--scene", "a", "--reps", "1", "--steps", "2",
+        "--out", str(tmp_path)]))
+    assert code == 0 and (tmp_path / "ceiling.json").exists()
