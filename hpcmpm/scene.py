@@ -1,0 +1,648 @@
+"""TOML scene -> frozen dataclasses. All validation and its messages live here.
+
+Every problem found is reported, one line each, as ``"{file}: {key.path}: {what is wrong}"``;
+`SceneError` carries the list. `docs/scene-format.md` documents every key.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import tomli_w
+
+from .errors import SceneError
+
+KERNELS = ("quadratic", "cubic")
+TRANSFERS = ("pic", "flip", "apic", "mls")
+CONDITIONS = ("sticky", "slip", "separate")
+BODY_SHAPES = ("box", "sphere", "cylinder", "mesh")
+COLLIDER_SHAPES = ("half_space", "sphere", "box", "cylinder")
+FACE_NAMES = ("x_lower", "x_upper", "y_lower", "y_upper", "z_lower", "z_upper")
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    every: float
+    fields: tuple[str, ...] = ()
+    checkpoint_every: int | None = None
+    checkpoint_keep: int = 2
+
+
+@dataclass(frozen=True)
+class ParallelSpec:
+    rebalance_threshold: float = 1.2
+    rebalance_every: int = 20
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    name: str
+    type: str
+    density: float
+    params: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    name: str
+    material: str
+    shape: str
+    params: dict
+    velocity: tuple
+    angular_velocity: Any
+    jitter: float = 0.0
+    seed: int = 0
+    velocity_field: dict | None = None
+
+
+@dataclass(frozen=True)
+class WallFace:
+    condition: str = "slip"
+    friction: float = 0.0
+
+
+@dataclass(frozen=True)
+class WallsSpec:
+    faces: tuple[WallFace, ...]
+
+
+@dataclass(frozen=True)
+class ColliderSpec:
+    name: str
+    shape: str
+    params: dict
+    condition: str = "sticky"
+    friction: float = 0.0
+    velocity: tuple = ()
+    angular_velocity: Any = None
+    start: float = 0.0
+    end: float = math.inf
+
+
+@dataclass(frozen=True)
+class PrescribedSpec:
+    name: str
+    region: dict
+    velocity: tuple
+    angular_velocity: Any
+    center: tuple | None = None
+
+
+@dataclass(frozen=True)
+class Scene:
+    path: str
+    text: str
+    dim: int
+    domain_lo: tuple
+    domain_hi: tuple
+    dx: float
+    particles_per_cell: int
+    kernel: str
+    transfer: str
+    flip_alpha: float
+    cfl: float
+    dt: float | None
+    end_time: float
+    gravity: tuple
+    output: OutputSpec
+    materials: tuple[MaterialSpec, ...]
+    bodies: tuple[BodySpec, ...]
+    walls: WallsSpec
+    colliders: tuple[ColliderSpec, ...]
+    prescribed: tuple[PrescribedSpec, ...]
+    parallel: ParallelSpec
+
+    def material_index(self, name: str) -> int:
+        return [m.name for m in self.materials].index(name)
+
+
+# -- the checker ------------------------------------------------------------------------------
+class Checker:
+    """Collects problems while reading values out of the raw TOML tables."""
+
+    def __init__(self, file: str):
+        self.file = file
+        self.problems: list[str] = []
+
+    def problem(self, path: str, message: str) -> None:
+        self.problems.append(f"{self.file}: {path}: {message}")
+
+    def keys(self, table: dict, path: str, allowed: Sequence[str]) -> None:
+        for key in table:
+            if key not in allowed:
+                close = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
+                hint = f" (did you mean {close[0]!r}?)" if close else \
+                    f" (allowed: {', '.join(allowed)})"
+                self.problem(_join(path, key), f"unknown key{hint}")
+
+    def table(self, parent: dict, key: str, path: str, required: bool = False) -> dict:
+        value = parent.get(key)
+        if value is None:
+            if required:
+                self.problem(_join(path, key), "missing (a table is required)")
+            return {}
+        if not isinstance(value, dict):
+            self.problem(_join(path, key), f"must be a table, got {_describe(value)}")
+            return {}
+        return value
+
+    def tables(self, parent: dict, key: str, path: str) -> list[dict]:
+        value = parent.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+            self.problem(_join(path, key), f"must be an array of tables ([[{key}]]), "
+                                           f"got {_describe(value)}")
+            return []
+        return value
+
+    def number(self, table: dict, key: str, path: str, default: Any = ..., low=None,
+               high=None, low_open=True, high_open=False, integer=False):
+        where = _join(path, key)
+        if key not in table:
+            if default is ...:
+                self.problem(where, "missing")
+                return None
+            return default
+        value = table[key]
+        kind = "an integer" if integer else "a number"
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                (integer and not isinstance(value, int)):
+            self.problem(where, f"must be {kind}, got {_describe(value)}")
+            return None
+        if not integer and not math.isfinite(value) and not (value == math.inf and high is None):
+            self.problem(where, f"must be finite, got {value}")
+            return None
+        if low is not None and (value <= low if low_open else value < low):
+            self.problem(where, f"must be {'>' if low_open else '>='} {low}, got {value}")
+            return None
+        if high is not None and (value >= high if high_open else value > high):
+            self.problem(where, f"must be {'<' if high_open else '<='} {high}, got {value}")
+            return None
+        return int(value) if integer else float(value)
+
+    def string(self, table: dict, key: str, path: str, default: Any = ...,
+               choices: Sequence[str] | None = None):
+        where = _join(path, key)
+        if key not in table:
+            if default is ...:
+                self.problem(where, "missing")
+                return None
+            return default
+        value = table[key]
+        if not isinstance(value, str):
+            self.problem(where, f"must be a string, got {_describe(value)}")
+            return None
+        if choices is not None and value not in choices:
+            close = difflib.get_close_matches(value, list(choices), n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            self.problem(where, f"unknown value {value!r} ({hint}valid: {', '.join(choices)})")
+            return None
+        return value
+
+    def vector(self, table: dict, key: str, path: str, dim: int, default: Any = ...,
+               positive: bool = False):
+        where = _join(path, key)
+        if key not in table:
+            if default is ...:
+                self.problem(where, "missing")
+                return None
+            return default
+        value = table[key]
+        if not isinstance(value, list) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            self.problem(where, f"must be an array of {dim} numbers, got {_describe(value)}")
+            return None
+        if len(value) != dim:
+            self.problem(where, f"must have {dim} components (dim = {dim}), got {len(value)}")
+            return None
+        if not all(math.isfinite(v) for v in value):
+            self.problem(where, f"must be finite, got {value}")
+            return None
+        if positive and any(v <= 0 for v in value):
+            self.problem(where, f"components must be > 0, got {value}")
+            return None
+        return tuple(float(v) for v in value)
+
+    def angular(self, table: dict, key: str, path: str, dim: int):
+        """2D: a scalar (about z); 3D: a 3-vector."""
+        if key not in table:
+            return 0.0 if dim == 2 else (0.0, 0.0, 0.0)
+        if dim == 2:
+            return self.number(table, key, path)
+        return self.vector(table, key, path, 3)
+
+
+def _join(path: str, key) -> str:
+    return f"{path}.{key}" if path else str(key)
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, str):
+        return f"string {value!r}"
+    if isinstance(value, bool):
+        return f"boolean {str(value).lower()}"
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return f"an array {value!r}" if len(repr(value)) < 40 else "an array"
+    return f"{type(value).__name__} {value!r}"
+
+
+# -- overrides --------------------------------------------------------------------------------
+def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]:
+    """Apply ``key.path=value`` strings in place; returns problems."""
+    problems = []
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            problems.append(f"{file}: --set {item}: expected key.path=value")
+            continue
+        try:
+            value = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text
+        parts = key.split(".")
+        node: Any = raw
+        ok = True
+        for part in parts[:-1]:
+            if isinstance(node, list) and part.isdigit() and int(part) < len(node):
+                node = node[int(part)]
+            elif isinstance(node, dict):
+                node = node.setdefault(part, {})
+            else:
+                problems.append(f"{file}: --set {key}: no such key")
+                ok = False
+                break
+        if not ok:
+            continue
+        last = parts[-1]
+        if isinstance(node, list) and last.isdigit() and int(last) < len(node):
+            node[int(last)] = value
+        elif isinstance(node, dict):
+            node[last] = value
+        else:
+            problems.append(f"{file}: --set {key}: no such key")
+    return problems
+
+
+# -- sections ---------------------------------------------------------------------------------
+SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "transfer",
+                   "flip_alpha", "cfl", "dt", "end_time", "gravity")
+
+
+def _simulation(c: Checker, raw: dict) -> dict:
+    sim = c.table(raw, "simulation", "", required=True)
+    c.keys(sim, "simulation", SIMULATION_KEYS)
+    p = "simulation"
+    out: dict[str, Any] = {}
+    dim = sim.get("dim")
+    if dim not in (2, 3) or isinstance(dim, bool):
+        c.problem(f"{p}.dim", "missing" if dim is None else f"must be 2 or 3, got {dim!r}")
+        dim = None
+    out["dim"] = dim
+    domain = c.table(sim, "domain", p, required=True)
+    c.keys(domain, f"{p}.domain", ("lower", "upper"))
+    lo = hi = None
+    if dim:
+        lo = c.vector(domain, "lower", f"{p}.domain", dim)
+        hi = c.vector(domain, "upper", f"{p}.domain", dim)
+        if lo and hi and any(h <= l for l, h in zip(lo, hi)):
+            c.problem(f"{p}.domain.upper", f"must exceed domain.lower in every component, "
+                                           f"got lower {list(lo)}, upper {list(hi)}")
+            lo = hi = None
+    out["domain_lo"], out["domain_hi"] = lo, hi
+    out["dx"] = c.number(sim, "dx", p, low=0.0)
+    out["particles_per_cell"] = c.number(sim, "particles_per_cell", p, 2, low=1, low_open=False,
+                                         integer=True)
+    out["kernel"] = c.string(sim, "kernel", p, "quadratic", KERNELS)
+    out["transfer"] = c.string(sim, "transfer", p, "mls", TRANSFERS)
+    out["flip_alpha"] = c.number(sim, "flip_alpha", p, 0.95, low=0.0, high=1.0, low_open=False)
+    out["cfl"] = c.number(sim, "cfl", p, 0.4, low=0.0, high=2.0)
+    out["dt"] = c.number(sim, "dt", p, None, low=0.0)
+    out["end_time"] = c.number(sim, "end_time", p, low=0.0)
+    out["gravity"] = c.vector(sim, "gravity", p, dim, (0.0,) * dim) if dim else None
+    if out["dx"] and lo and hi:
+        cells = [(h - l) / out["dx"] for l, h in zip(lo, hi)]
+        if any(abs(n - round(n)) > 1e-6 * max(n, 1) for n in cells):
+            c.problem(f"{p}.dx", f"must divide the domain size evenly, got {out['dx']} for "
+                                 f"extent {[h - l for l, h in zip(lo, hi)]}")
+    return out
+
+
+def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
+    t = c.table(raw, "output", "")
+    c.keys(t, "output", ("every", "fields", "checkpoint_every", "checkpoint_keep"))
+    every = c.number(t, "every", "output", None, low=0.0)
+    fields = t.get("fields", [])
+    if not isinstance(fields, list) or not all(isinstance(f, str) for f in fields):
+        c.problem("output.fields", f"must be an array of strings, got {_describe(fields)}")
+        fields = []
+    return OutputSpec(
+        every=every if every is not None else (end_time or 1.0),
+        fields=tuple(fields),
+        checkpoint_every=c.number(t, "checkpoint_every", "output", None, low=1, low_open=False,
+                                  integer=True),
+        checkpoint_keep=c.number(t, "checkpoint_keep", "output", 2, low=1, low_open=False,
+                                 integer=True) or 2)
+
+
+def _parallel(c: Checker, raw: dict) -> ParallelSpec:
+    t = c.table(raw, "parallel", "")
+    c.keys(t, "parallel", ("rebalance_threshold", "rebalance_every"))
+    return ParallelSpec(
+        rebalance_threshold=c.number(t, "rebalance_threshold", "parallel", 1.2, low=1.0) or 1.2,
+        rebalance_every=c.number(t, "rebalance_every", "parallel", 20, low=1, low_open=False,
+                                 integer=True) or 20)
+
+
+def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
+    from .materials import MATERIALS, validate_params
+
+    out = []
+    entries = c.tables(raw, "materials", "")
+    if not entries:
+        c.problem("materials", "missing: at least one [[materials]] table is required")
+    names = set()
+    for i, m in enumerate(entries):
+        p = f"materials[{i}]"
+        name = c.string(m, "name", p)
+        mtype = c.string(m, "type", p, choices=sorted(MATERIALS))
+        density = c.number(m, "density", p, low=0.0)
+        if name in names:
+            c.problem(f"{p}.name", f"duplicate material name {name!r}")
+        names.add(name)
+        params = {k: v for k, v in m.items() if k not in ("name", "type", "density")}
+        if mtype is not None:
+            for problem in validate_params(mtype, params):
+                c.problem(p, problem)
+        if None not in (name, mtype, density):
+            out.append(MaterialSpec(name, mtype, density, dict(params)))
+    return tuple(out)
+
+
+BODY_KEYS = {
+    "box": ("lower", "upper"), "sphere": ("center", "radius"),
+    "cylinder": ("center", "axis", "radius", "length"),
+    "mesh": ("file", "scale", "translate"),
+}
+COMMON_BODY_KEYS = ("name", "material", "shape", "velocity", "angular_velocity", "jitter",
+                    "seed", "velocity_field")
+
+
+def _bodies(c: Checker, raw: dict, dim, materials, lo, hi, base_dir: Path) -> tuple:
+    out = []
+    names = {m.name for m in materials}
+    entries = c.tables(raw, "bodies", "")
+    if not entries:
+        c.problem("bodies", "missing: at least one [[bodies]] table is required")
+    for i, b in enumerate(entries):
+        p = f"bodies[{i}]"
+        shape = c.string(b, "shape", p, choices=BODY_SHAPES)
+        c.keys(b, p, COMMON_BODY_KEYS + (BODY_KEYS.get(shape, ()) if shape else
+                                        tuple(k for v in BODY_KEYS.values() for k in v)))
+        material = c.string(b, "material", p)
+        if material is not None and names and material not in names:
+            c.problem(f"{p}.material", f"unknown material {material!r} (defined: "
+                                       f"{', '.join(sorted(names))})")
+        if not dim:
+            continue
+        params = _body_params(c, b, p, shape, dim, base_dir)
+        velocity = c.vector(b, "velocity", p, dim, (0.0,) * dim)
+        angular = c.angular(b, "angular_velocity", p, dim)
+        jitter = c.number(b, "jitter", p, 0.0, low=0.0, high=1.0, low_open=False)
+        seed = c.number(b, "seed", p, 0, integer=True)
+        vfield = _velocity_field(c, b, p, dim)
+        if params is not None and lo and hi:
+            blo, bhi = body_bounds(shape, params, dim)
+            if any(bl < l - 1e-12 for bl, l in zip(blo, lo)) or \
+                    any(bh > h + 1e-12 for bh, h in zip(bhi, hi)):
+                c.problem(p, f"body lies outside the domain: its bounds {_fmt(blo)}..{_fmt(bhi)}"
+                             f" exceed the domain {_fmt(lo)}..{_fmt(hi)}")
+        if None not in (shape, material, params, velocity, angular, jitter, seed):
+            out.append(BodySpec(b.get("name", f"body{i}"), material, shape, params, velocity,
+                                angular, jitter, seed, vfield))
+    return tuple(out)
+
+
+def _fmt(v) -> str:
+    return "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+
+def _body_params(c: Checker, b: dict, p: str, shape, dim: int, base_dir: Path):
+    if shape == "box":
+        lower, upper = c.vector(b, "lower", p, dim), c.vector(b, "upper", p, dim)
+        if lower and upper and any(u <= l for l, u in zip(lower, upper)):
+            c.problem(f"{p}.upper", "must exceed lower in every component")
+            return None
+        return None if None in (lower, upper) else {"lower": lower, "upper": upper}
+    if shape == "sphere":
+        center, radius = c.vector(b, "center", p, dim), c.number(b, "radius", p, low=0.0)
+        return None if None in (center, radius) else {"center": center, "radius": radius}
+    if shape == "cylinder":
+        if dim != 3:
+            c.problem(f"{p}.shape", "cylinder bodies need dim = 3 (in 2D use a box)")
+            return None
+        center, axis = c.vector(b, "center", p, 3), c.vector(b, "axis", p, 3)
+        radius, length = c.number(b, "radius", p, low=0.0), c.number(b, "length", p, low=0.0)
+        if axis is not None and not any(axis):
+            c.problem(f"{p}.axis", "must be a nonzero vector")
+            return None
+        return None if None in (center, axis, radius, length) else \
+            {"center": center, "axis": axis, "radius": radius, "length": length}
+    if shape == "mesh":
+        file = c.string(b, "file", p)
+        scale = c.number(b, "scale", p, 1.0, low=0.0)
+        translate = c.vector(b, "translate", p, dim, (0.0,) * dim)
+        if file is None or None in (scale, translate):
+            return None
+        path = (base_dir / file).resolve()
+        from .geometry.mesh import MeshError, load_mesh
+
+        try:
+            points, _ = load_mesh(path, dim)
+        except MeshError as exc:
+            c.problem(f"{p}.file", str(exc))
+            return None
+        params = {"file": str(path), "scale": scale, "translate": translate}
+        pts = points * scale + translate
+        params["bounds"] = (tuple(pts.min(axis=0)), tuple(pts.max(axis=0)))
+        return params
+    return None
+
+
+def _velocity_field(c: Checker, b: dict, p: str, dim: int):
+    if "velocity_field" not in b:
+        return None
+    t = c.table(b, "velocity_field", p)
+    q = f"{p}.velocity_field"
+    c.keys(t, q, ("type", "amplitude", "length", "axis"))
+    kind = c.string(t, "type", q, choices=("axial_mode",))
+    amp = c.number(t, "amplitude", q)
+    length = c.number(t, "length", q, low=0.0)
+    axis = c.number(t, "axis", q, 0, low=0, high=dim - 1, low_open=False, integer=True)
+    if None in (kind, amp, length, axis):
+        return None
+    return {"type": kind, "amplitude": amp, "length": length, "axis": axis}
+
+
+def body_bounds(shape: str, params: dict, dim: int):
+    """Axis-aligned bounding box of a body."""
+    if shape == "box":
+        return params["lower"], params["upper"]
+    if shape == "sphere":
+        c, r = params["center"], params["radius"]
+        return tuple(x - r for x in c), tuple(x + r for x in c)
+    if shape == "cylinder":
+        import numpy as np
+
+        c = np.asarray(params["center"])
+        a = np.asarray(params["axis"]) / np.linalg.norm(params["axis"])
+        h, r = params["length"] / 2, params["radius"]
+        ext = np.abs(a) * h + r * np.sqrt(np.clip(1 - a * a, 0, None))
+        return tuple(c - ext), tuple(c + ext)
+    return params["bounds"]
+
+
+def _walls(c: Checker, raw: dict, dim) -> WallsSpec:
+    t = c.table(raw, "walls", "")
+    faces = FACE_NAMES[: 2 * dim] if dim else FACE_NAMES
+    c.keys(t, "walls", ("default", "friction") + tuple(faces))
+    default = c.string(t, "default", "walls", "slip", CONDITIONS) or "slip"
+    friction = c.number(t, "friction", "walls", 0.0, low=0.0, low_open=False) or 0.0
+    out = []
+    for name in faces:
+        f = c.table(t, name, "walls")
+        c.keys(f, f"walls.{name}", ("condition", "friction"))
+        cond = c.string(f, "condition", f"walls.{name}", default, CONDITIONS) or default
+        fr = c.number(f, "friction", f"walls.{name}", friction, low=0.0, low_open=False)
+        out.append(WallFace(cond, friction if fr is None else fr))
+    return WallsSpec(tuple(out))
+
+
+COLLIDER_KEYS = {
+    "half_space": ("point", "normal"), "sphere": ("center", "radius"),
+    "box": ("center", "half_extents", "rotation"),
+    "cylinder": ("center", "axis", "radius", "half_length"),
+}
+
+
+def _colliders(c: Checker, raw: dict, dim) -> tuple:
+    out = []
+    for i, t in enumerate(c.tables(raw, "colliders", "")):
+        p = f"colliders[{i}]"
+        shape = c.string(t, "shape", p, choices=COLLIDER_SHAPES)
+        common = ("name", "shape", "condition", "friction", "velocity", "angular_velocity",
+                  "start", "end")
+        c.keys(t, p, common + COLLIDER_KEYS.get(shape, ()))
+        if not dim or shape is None:
+            continue
+        params = {}
+        if shape == "half_space":
+            params = {"point": c.vector(t, "point", p, dim), "normal": c.vector(t, "normal", p, dim)}
+        elif shape == "sphere":
+            params = {"center": c.vector(t, "center", p, dim),
+                      "radius": c.number(t, "radius", p, low=0.0)}
+        elif shape == "box":
+            params = {"center": c.vector(t, "center", p, dim),
+                      "half_extents": c.vector(t, "half_extents", p, dim, positive=True)}
+            if "rotation" in t:
+                params["rotation"] = c.angular(t, "rotation", p, dim)
+        else:
+            if dim != 3:
+                c.problem(f"{p}.shape", "cylinder colliders need dim = 3")
+                continue
+            params = {"center": c.vector(t, "center", p, 3), "axis": c.vector(t, "axis", p, 3),
+                      "radius": c.number(t, "radius", p, low=0.0),
+                      "half_length": c.number(t, "half_length", p, low=0.0)}
+        cond = c.string(t, "condition", p, "sticky", CONDITIONS)
+        friction = c.number(t, "friction", p, 0.0, low=0.0, low_open=False)
+        velocity = c.vector(t, "velocity", p, dim, (0.0,) * dim)
+        angular = c.angular(t, "angular_velocity", p, dim)
+        start = c.number(t, "start", p, 0.0, low=0.0, low_open=False)
+        end = c.number(t, "end", p, math.inf, low=0.0, low_open=False)
+        if None in params.values() or None in (cond, friction, velocity, angular, start, end):
+            continue
+        for key in ("normal", "axis"):
+            if key in params and not any(params[key]):
+                c.problem(f"{p}.{key}", "must be a nonzero vector")
+        out.append(ColliderSpec(t.get("name", f"collider{i}"), shape, params, cond, friction,
+                                velocity, angular, start, end))
+    return tuple(out)
+
+
+def _prescribed(c: Checker, raw: dict, dim) -> tuple:
+    out = []
+    for i, t in enumerate(c.tables(raw, "prescribed", "")):
+        p = f"prescribed[{i}]"
+        c.keys(t, p, ("name", "region", "velocity", "angular_velocity", "center"))
+        if not dim:
+            continue
+        region = c.table(t, "region", p, required=True)
+        c.keys(region, f"{p}.region", ("lower", "upper"))
+        lower = c.vector(region, "lower", f"{p}.region", dim)
+        upper = c.vector(region, "upper", f"{p}.region", dim)
+        velocity = c.vector(t, "velocity", p, dim, (0.0,) * dim)
+        angular = c.angular(t, "angular_velocity", p, dim)
+        center = c.vector(t, "center", p, dim, None)
+        if None in (lower, upper, velocity, angular):
+            continue
+        out.append(PrescribedSpec(t.get("name", f"prescribed{i}"),
+                                  {"lower": lower, "upper": upper}, velocity, angular, center))
+    return tuple(out)
+
+
+TOP_KEYS = ("simulation", "output", "parallel", "materials", "bodies", "walls", "colliders",
+            "prescribed")
+
+
+def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = (),
+                base_dir: Path | None = None) -> Scene:
+    """Validate a scene given as TOML text; raises `SceneError` with every problem."""
+    file = str(path)
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{file}: TOML syntax error: {exc}") from None
+    c = Checker(file)
+    c.problems.extend(apply_overrides(raw, overrides, file))
+    c.keys(raw, "", TOP_KEYS)
+    base_dir = base_dir or (Path(path).parent if path != "<string>" else Path("."))
+    sim = _simulation(c, raw)
+    dim = sim["dim"]
+    output = _output(c, raw, sim["end_time"])
+    parallel = _parallel(c, raw)
+    materials = _materials(c, raw)
+    bodies = _bodies(c, raw, dim, materials, sim["domain_lo"], sim["domain_hi"], base_dir)
+    walls = _walls(c, raw, dim)
+    colliders = _colliders(c, raw, dim)
+    prescribed = _prescribed(c, raw, dim)
+    if c.problems:
+        raise SceneError(c.problems)
+    _resolve_mesh_paths(raw, bodies)
+    return Scene(path=file, text=tomli_w.dumps(raw), output=output, materials=materials,
+                 bodies=bodies, walls=walls, colliders=colliders, prescribed=prescribed,
+                 parallel=parallel, **sim)
+
+
+def _resolve_mesh_paths(raw: dict, bodies) -> None:
+    """Store absolute mesh paths in the resolved text, so a checkpoint's scene still finds
+    its meshes from any working directory."""
+    for entry, body in zip(raw.get("bodies", []), bodies):
+        if body.shape == "mesh":
+            entry["file"] = body.params["file"]
+
+
+def load_scene(path, overrides: Sequence[str] = ()) -> Scene:
+    """Read and validate a scene file (``--set`` overrides applied first)."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except FileNotFoundError:
+        raise SceneError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{path}: cannot read: {exc}") from None
+    return parse_scene(text, str(path), overrides, base_dir=p.parent)
