@@ -1,0 +1,89 @@
+"""Bad scenes through the console script: one line naming file and key, exit code 2, no
+traceback. Each case edits a valid scene so exactly one thing is wrong."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+GOOD = Path("inputs/disks_2d.toml").read_text()
+
+
+def hpcmpm(*args, cwd=None):
+    exe = Path(sys.executable).with_name("hpcmpm")
+    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=120,
+                          cwd=cwd)
+
+
+CASES = {
+    "unknown_key": (GOOD.replace("cfl = 0.4", "cfll = 0.4"),
+                    "simulation.cfll: unknown key (did you mean 'cfl'?)"),
+    "wrong_type": (GOOD.replace("dx = 0.02", 'dx = "fine"'),
+                   "simulation.dx: must be a number, got string 'fine'"),
+    "missing_value": (GOOD.replace("end_time = 3.0", ""), "simulation.end_time: missing"),
+    "poisson_ratio": (GOOD.replace("nu = 0.3", "nu = 0.5"), "nu: must be < 0.5, got 0.5"),
+    "negative_density": (GOOD.replace("density = 1000.0", "density = -1000.0"),
+                         "materials[0].density: must be > 0.0, got -1000.0"),
+    "negative_dx": (GOOD.replace("dx = 0.02", "dx = -0.02"),
+                    "simulation.dx: must be > 0.0, got -0.02"),
+    "body_outside": (GOOD.replace("center = [0.25, 0.25]", "center = [0.1, 0.25]"),
+                     "bodies[0]: body lies outside the domain"),
+    "unreadable_mesh": (GOOD.replace('shape = "sphere"\ncenter = [0.25, 0.25]\nradius = 0.2',
+                                     'shape = "mesh"\nfile = "missing.stl"', 1),
+                        "bodies[0].file: cannot read mesh"),
+    "unknown_material_type": (GOOD.replace('type = "neo_hookean"', 'type = "neo_hooke"'),
+                              "materials[0].type: unknown value 'neo_hooke'"),
+    "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"), "TOML syntax error"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_scene_gives_one_line_and_exit_code_2(tmp_path, case):
+    text, expected = CASES[case]
+    scene = tmp_path / f"{case}.toml"
+    scene.write_text(text)
+    for verb in ("validate", "run"):
+        proc = hpcmpm(verb, str(scene), *(["--out", str(tmp_path / "out")] if verb == "run" else []))
+        assert proc.returncode == 2, proc.stderr
+        assert "Traceback" not in proc.stderr + proc.stdout
+        lines = [l for l in proc.stderr.splitlines() if l.startswith("hpcmpm: error:")]
+        assert len(lines) == 1, proc.stderr
+        assert f"{scene}: " in lines[0] and expected in lines[0], lines[0]
+
+
+def test_every_problem_is_reported(tmp_path):
+    scene = tmp_path / "many.toml"
+    scene.write_text(GOOD.replace("nu = 0.3", "nu = 0.7").replace("cfl = 0.4", "cfl = -1")
+                     .replace('kernel = "quadratic"', 'kernel = "quintic"'))
+    proc = hpcmpm("validate", str(scene))
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 3, proc.stderr
+    assert any("simulation.kernel: unknown value 'quintic'" in l for l in lines)
+
+
+def test_missing_file_and_valid_inputs():
+    proc = hpcmpm("validate", "no/such/scene.toml")
+    assert proc.returncode == 2 and "no/such/scene.toml: no such file" in proc.stderr
+    for scene in sorted(Path("inputs").glob("*.toml")):
+        proc = hpcmpm("validate", str(scene))
+        assert proc.returncode == 0, proc.stderr
+        assert "ok (" in proc.stdout
+
+
+def test_set_overrides_and_round_trip():
+    from hpcmpm.scene import load_scene, parse_scene
+
+    scene = load_scene("inputs/disks_2d.toml", ["simulation.cfl=0.25", "materials.0.E=2000.0"])
+    assert scene.cfl == 0.25 and scene.materials[0].params["E"] == 2000.0
+    again = parse_scene(scene.text, path=scene.path)
+    assert again == scene
+
+
+def test_output_of_another_run_is_not_overwritten(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "frame_000000.h5").write_text("")
+    proc = hpcmpm("run", "inputs/bar_2d.toml", "--out", str(out), "--quiet")
+    assert proc.returncode == 5 and "--force" in proc.stderr
