@@ -68,6 +68,62 @@ def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
     return out
 
 
+@njit(cache=True)
+def cell_bounds(x, domain_lo, inv_dx, lo, hi):
+    """Smallest and largest particle cell per axis in one pass, written to lo, hi (d,) int64.
+    Non-finite positions are skipped (the instability guard reports them). Returns the number
+    of particles counted."""
+    n, dim = x.shape
+    for a in range(dim):
+        lo[a] = BIG
+        hi[a] = -BIG
+    count = 0
+    for p in range(n):
+        finite = True
+        for a in range(dim):
+            xi = (x[p, a] - domain_lo[a]) * inv_dx
+            if not (xi > -BIG and xi < BIG):
+                finite = False
+        if not finite:
+            continue
+        count += 1
+        for a in range(dim):
+            c = int(math.floor((x[p, a] - domain_lo[a]) * inv_dx))
+            lo[a] = min(lo[a], c)
+            hi[a] = max(hi[a], c)
+    return count
+
+
+@njit(cache=True)
+def _inside(x, p, lo, hi, k):
+    for a in range(x.shape[1]):
+        if not (x[p, a] >= lo[k, a] and x[p, a] <= hi[k, a]):
+            return False
+    return True
+
+
+@njit(cache=True)
+def points_in_boxes(x, lo, hi):
+    """Indices of the points inside each closed box ``[lo[k], hi[k]]`` (k, d) float64, grouped
+    by box (a point may be in several). Returns (counts (k,), index (counts.sum(),))."""
+    n_boxes = lo.shape[0]
+    counts = np.zeros(n_boxes, np.int64)
+    for p in range(x.shape[0]):
+        for k in range(n_boxes):
+            if _inside(x, p, lo, hi, k):
+                counts[k] += 1
+    fill = np.zeros(n_boxes, np.int64)
+    for k in range(1, n_boxes):
+        fill[k] = fill[k - 1] + counts[k - 1]
+    index = np.empty(counts.sum(), np.int64)
+    for p in range(x.shape[0]):
+        for k in range(n_boxes):
+            if _inside(x, p, lo, hi, k):
+                index[fill[k]] = p
+                fill[k] += 1
+    return counts, index
+
+
 def _choose_cut(hist: np.ndarray, first: int, n_left: int, n_ranks: int) -> int:
     """Cell index ``c`` that puts the weighted ``n_left/n_ranks`` quantile of ``hist`` (counts
     of cells ``first, first+1, ...``) below it; both sides keep at least one cell column."""

@@ -18,10 +18,10 @@ import numpy as np
 from mpi4py import MPI
 
 from .comm import Communicator
-from .decomposition import (BIG, intersect, is_empty, owner_ranks, particle_cells,
-                            recursive_bisection)
+from .decomposition import (BIG, cell_bounds, intersect, is_empty, owner_ranks, particle_cells,
+                            points_in_boxes, recursive_bisection)
 from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
-                       pack_region, pack_rows, region_size, region_slices, row_layout,
+                       pack_region, pack_rows, region_size, region_slices, row_dtype,
                        unpack_region, unpack_rows)
 
 # Kernel support around a particle's cell, in nodes: 1 below, 2 above (quadratic and cubic).
@@ -128,15 +128,14 @@ class Domain(Communicator):
         if not len(order) and not recv_counts.any():
             return 0
         arrays = {name: particles[name] for name in particles.field_names()}
-        layout = row_layout(arrays)
-        send = pack_rows(arrays, order, layout)
+        send = pack_rows(arrays, order, row_dtype(arrays))
         recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_MIGRATE)
         if len(order):
             stay = np.ones(particles.n, dtype=bool)
             stay[order] = False
             particles.keep(stay)
         if len(recv):
-            particles.append(unpack_rows(recv, layout))
+            particles.append(unpack_rows(recv))
         return int(len(order))
 
     def global_count(self, particles) -> int:
@@ -150,30 +149,23 @@ class Domain(Communicator):
         sides agree on who talks to whom and the counts go point-to-point too."""
         names = list(names)
         arrays = {name: particles[name] for name in names}
-        layout = row_layout(arrays)
         lo = self.domain_lo + self.boxes[:, 0].astype(np.float64) * self.dx
         hi = self.domain_lo + self.boxes[:, 1].astype(np.float64) * self.dx
         me = self.rank
         gap = np.maximum(lo - hi[me], lo[me] - hi).max(axis=1)
-        neighbours = [q for q in np.flatnonzero(gap <= r) if q != me]
-        x = particles["x"]
+        neighbours = np.array([q for q in np.flatnonzero(gap <= r) if q != me], dtype=np.int64)
+        counts, index = points_in_boxes(particles["x"], lo[neighbours] - r, hi[neighbours] + r)
         send_counts = np.zeros(self.size, dtype=np.int64)
-        picked = []
-        for q in neighbours:
-            inside = np.all((x >= lo[q] - r) & (x <= hi[q] + r), axis=1)
-            index = np.flatnonzero(inside)
-            send_counts[q] = len(index)
-            picked.append(index)
+        send_counts[neighbours] = counts
         recv_counts = np.zeros(self.size, dtype=np.int64)
-        requests = [self.comm.Irecv(recv_counts[q:q + 1], source=q, tag=TAG_HALO_COUNT)
+        requests = [self.comm.Irecv(recv_counts[q:q + 1], source=int(q), tag=TAG_HALO_COUNT)
                     for q in neighbours]
-        requests += [self.comm.Isend(send_counts[q:q + 1], dest=q, tag=TAG_HALO_COUNT)
+        requests += [self.comm.Isend(send_counts[q:q + 1], dest=int(q), tag=TAG_HALO_COUNT)
                      for q in neighbours]
         MPI.Request.Waitall(requests)
-        index = np.concatenate(picked) if picked else np.empty(0, dtype=np.int64)
-        send = pack_rows(arrays, index, layout)
+        send = pack_rows(arrays, index, row_dtype(arrays))
         recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_HALO)
-        return unpack_rows(recv, layout)
+        return {name: np.ascontiguousarray(a) for name, a in unpack_rows(recv).items()}
 
     # -- load balance -------------------------------------------------------------------------
     def imbalance(self, particles) -> float:
@@ -199,10 +191,10 @@ class Domain(Communicator):
         exchange plan when they changed. ``order`` is accepted for both kernels: the support
         (cell - 1 .. cell + 2) is the same."""
         support = np.zeros((2, self.dim), dtype=np.int64)
-        if particles.n:
-            cells = particle_cells(particles["x"], self.domain_lo, self.inv_dx)
-            support[0] = cells.min(axis=0) - GHOST_BELOW
-            support[1] = cells.max(axis=0) + GHOST_ABOVE + 1
+        lo, hi = np.empty(self.dim, np.int64), np.empty(self.dim, np.int64)
+        if cell_bounds(particles["x"], self.domain_lo, self.inv_dx, lo, hi):
+            support[0] = lo - GHOST_BELOW
+            support[1] = hi + GHOST_ABOVE + 1
         supports = np.empty((self.size, 2, self.dim), dtype=np.int64)
         self.comm.Allgather(support, supports)
         key = supports.tobytes()

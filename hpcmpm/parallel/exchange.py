@@ -1,14 +1,12 @@
 """Point-to-point building blocks: particle rows packed as bytes, grid regions packed as
 float64, and the non-blocking send/receive of one buffer per neighbour.
 
-Packing is numpy slicing only (no Python loop over particles or nodes): a particle is one row
-of a ``(m, row_bytes)`` uint8 array holding every field side by side, so the particles for one
-destination are one contiguous block of rows and one message.
+Packing is numpy slicing only (no Python loop over particles or nodes): a particle is one packed
+record holding every field side by side (a numpy structured dtype built from the fields), so the
+particles for one destination are one contiguous run of records and one message.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 from mpi4py import MPI
@@ -17,73 +15,46 @@ from mpi4py import MPI
 TAG_MIGRATE, TAG_SUM, TAG_FILL, TAG_HALO_COUNT, TAG_HALO = 101, 102, 103, 104, 105
 
 
-@dataclass(frozen=True)
-class Column:
-    """Where one field sits in a packed particle row."""
-
-    name: str
-    dtype: np.dtype
-    trailing: tuple[int, ...]
-    offset: int
-    nbytes: int
+def row_dtype(arrays: dict[str, np.ndarray]) -> np.dtype:
+    """Packed record type of one particle: every field of ``arrays`` (any dtype, any trailing
+    shape) side by side. Names are sorted, so ranks that declared the same fields in a
+    different order still agree on the bytes."""
+    return np.dtype([(name, arrays[name].dtype, arrays[name].shape[1:])
+                     for name in sorted(arrays)])
 
 
-def row_layout(arrays: dict[str, np.ndarray]) -> list[Column]:
-    """Layout of a packed row for these fields. Names are sorted, so ranks that declared the
-    same fields in a different order still agree on the bytes."""
-    columns, offset = [], 0
-    for name in sorted(arrays):
-        a = arrays[name]
-        nbytes = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
-        columns.append(Column(name, a.dtype, tuple(a.shape[1:]), offset, nbytes))
-        offset += nbytes
-    return columns
+def pack_rows(arrays: dict[str, np.ndarray], index: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """Records (len(index),) of ``dtype`` holding rows ``index`` of every field."""
+    rows = np.empty(len(index), dtype=dtype)
+    for name in dtype.names:
+        rows[name] = arrays[name][index]
+    return rows
 
 
-def pack_rows(arrays: dict[str, np.ndarray], index: np.ndarray, layout: list[Column]) -> np.ndarray:
-    """Rows ``index`` of every field, side by side: (len(index), row_bytes) uint8."""
-    m = len(index)
-    buf = np.empty((m, row_bytes(layout)), dtype=np.uint8)
-    for c in layout:
-        rows = np.ascontiguousarray(arrays[c.name][index])
-        buf[:, c.offset:c.offset + c.nbytes] = rows.view(np.uint8).reshape(m, c.nbytes)
-    return buf
-
-
-def unpack_rows(buf: np.ndarray, layout: list[Column]) -> dict[str, np.ndarray]:
-    """Inverse of `pack_rows`: a dict of arrays (m, *trailing) with the original dtypes."""
-    m = len(buf)
-    out = {}
-    for c in layout:
-        raw = np.ascontiguousarray(buf[:, c.offset:c.offset + c.nbytes])
-        out[c.name] = raw.view(c.dtype).reshape((m,) + c.trailing)
-    return out
-
-
-def row_bytes(layout: list[Column]) -> int:
-    return layout[-1].offset + layout[-1].nbytes if layout else 0
+def unpack_rows(rows: np.ndarray) -> dict[str, np.ndarray]:
+    """The fields of received records, as (strided) views: (m, *trailing) each."""
+    return {name: rows[name] for name in rows.dtype.names}
 
 
 def exchange_rows(comm: MPI.Comm, send: np.ndarray, send_counts: np.ndarray,
                   recv_counts: np.ndarray, tag: int) -> np.ndarray:
-    """Send rows ``send`` (grouped by destination, ``send_counts[r]`` rows for rank ``r``) and
-    receive ``recv_counts[r]`` rows from each rank; messages only where a count is nonzero.
-    Returns the received rows grouped by source rank."""
-    width = send.shape[1] if send.ndim == 2 else 0
-    recv = np.empty((int(recv_counts.sum()), width), dtype=np.uint8)
-    if width == 0:
+    """Send records ``send`` (grouped by destination, ``send_counts[r]`` for rank ``r``) and
+    receive ``recv_counts[r]`` records from each rank; messages only where a count is nonzero.
+    Returns the received records grouped by source rank. Records travel as bytes."""
+    recv = np.empty(int(recv_counts.sum()), dtype=send.dtype)
+    if send.dtype.itemsize == 0:
         return recv
     requests = []
     start = 0
-    for source, count in enumerate(recv_counts):
-        if count:
-            requests.append(comm.Irecv(recv[start:start + count], source=source, tag=tag))
-            start += count
+    for source in np.flatnonzero(recv_counts):
+        stop = start + int(recv_counts[source])
+        requests.append(comm.Irecv(recv[start:stop].view(np.uint8), source=int(source), tag=tag))
+        start = stop
     start = 0
-    for dest, count in enumerate(send_counts):
-        if count:
-            requests.append(comm.Isend(send[start:start + count], dest=dest, tag=tag))
-            start += count
+    for dest in np.flatnonzero(send_counts):
+        stop = start + int(send_counts[dest])
+        requests.append(comm.Isend(send[start:stop].view(np.uint8), dest=int(dest), tag=tag))
+        start = stop
     MPI.Request.Waitall(requests)
     return recv
 
