@@ -1,8 +1,10 @@
 """Grid boundary conditions: domain walls, analytic colliders, prescribed particle sets.
 
-Walls and colliders have ``apply(velocity, origin, dx, domain_lo, t, dt, mass)``, called on
-the grid velocity after the explicit update. Prescribed sets scatter node marks with P2G and
-impose their rigid velocity last (`hpcmpm.boundaries.prescribed`).
+Walls and colliders have ``apply(velocity, origin, dx, domain_lo, t, dt, mass=None)``, acting
+in place on the rank-local grid velocity (block + (dim,)) after the explicit update; node j of
+the block has global index ``origin + j`` and sits at ``domain_lo + (origin + j) * dx``.
+Prescribed sets mark the support nodes of their particles after P2G and impose their rigid
+velocity last, so a clamp wins over walls and colliders (`hpcmpm.boundaries.prescribed`).
 """
 
 from __future__ import annotations
@@ -10,15 +12,16 @@ from __future__ import annotations
 import numpy as np
 
 from .colliders import Collider
-from .prescribed import PrescribedSet, mark_prescribed_particles
+from .prescribed import (PrescribedSet, apply_prescribed, mark_nodes, mark_prescribed_particles,
+                         parameters)
 from .walls import Walls
 
 
 def build_boundaries(scene) -> list:
     """Walls (when the scene has them) followed by the colliders, in scene order."""
-    out = []
+    out: list = []
     walls = getattr(scene, "walls", None)
-    if walls is not None:
+    if walls is not None and walls.faces:
         n_cells = np.rint((np.asarray(scene.domain_hi) - np.asarray(scene.domain_lo))
                           / scene.dx).astype(np.int64)
         out.append(Walls(walls.faces, n_cells))
@@ -27,8 +30,9 @@ def build_boundaries(scene) -> list:
 
 
 def build_prescribed(scene) -> list[PrescribedSet]:
+    """One `PrescribedSet` per ``[[prescribed]]`` entry; its index is its position."""
     return [PrescribedSet(spec, i, scene.dim) for i, spec in enumerate(scene.prescribed)]
 
 
-__all__ = ["Collider", "PrescribedSet", "Walls", "build_boundaries", "build_prescribed",
-           "mark_prescribed_particles"]
+__all__ = ["Collider", "PrescribedSet", "Walls", "apply_prescribed", "build_boundaries",
+           "build_prescribed", "mark_nodes", "mark_prescribed_particles", "parameters"]

@@ -1,11 +1,16 @@
 """Analytic colliders: rigid obstacles given by a signed distance, static or kinematic.
 
 A collider moves with constant linear velocity ``v`` and spins with constant angular velocity
-``omega`` about its centre: centre ``c(t) = c0 + v t``, orientation ``R(t) = exp(t [omega]x) R0``,
-and the rigid velocity at ``x`` is ``v + omega x (x - c(t))``. Grid nodes inside
-(``phi <= 0``) get their velocity relative to the obstacle projected (`contact.project`). The
-collider is placed at the end of the step, ``t + dt``, so a moving obstacle pushes material out
-of the space it is about to occupy (Stomakhin 2013 §8).
+``omega`` about its centre: centre ``c(t) = c0 + v t``, orientation ``R(t) = exp(t [omega]x) R0``
+(in 2D, a rotation by ``omega t`` about z), and the rigid velocity at ``x`` is
+``v + omega x (x - c(t))``. It acts only while ``start <= t <= end``. Grid nodes inside
+(``phi <= 0``) get their velocity relative to the obstacle projected (`contact.project`,
+Stomakhin 2013 §8).
+
+Shapes live in a body frame centred at the origin, ``y = R^T (x - c)``: half-space (the
+obstacle is ``y_z <= 0``; R0 takes e_z to the scene's ``normal``, which points out of the
+obstacle into the material), sphere (a disk in 2D), box (oriented; 2D angle or 3D rotation
+vector), cylinder (3D, capped, axis = body z). 2D is the z = 0 plane of the 3D formulas.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ._block import block3, mass3, omega3, vec3
 from .contact import CONDITIONS, project
 
 HALF_SPACE, SPHERE, BOX, CYLINDER = 0, 1, 2, 3
@@ -22,7 +28,7 @@ SHAPES = {"half_space": HALF_SPACE, "sphere": SPHERE, "box": BOX, "cylinder": CY
 
 
 def rotation_matrix(rotation_vector) -> np.ndarray:
-    """Rodrigues: the rotation by |r| about r/|r| (3D)."""
+    """``exp([r]x)``: the rotation by ``|r|`` about ``r/|r|`` (Rodrigues' formula), 3x3."""
     r = np.asarray(rotation_vector, dtype=np.float64)
     angle = np.linalg.norm(r)
     if angle == 0.0:
@@ -33,7 +39,7 @@ def rotation_matrix(rotation_vector) -> np.ndarray:
 
 
 def rotation_taking_z_to(axis) -> np.ndarray:
-    """A rotation that maps e_z onto the unit vector ``axis``."""
+    """A rotation that maps e_z onto the unit vector along ``axis``."""
     a = np.asarray(axis, dtype=np.float64)
     a = a / np.linalg.norm(a)
     z = np.array([0.0, 0.0, 1.0])
@@ -47,15 +53,16 @@ def rotation_taking_z_to(axis) -> np.ndarray:
 
 @njit(cache=True, inline="always")
 def signed_distance(shape, size, y0, y1, y2):
-    """phi and outward normal of a shape centred at the origin of its body frame.
+    """phi and outward unit normal (phi, m0, m1, m2) at body-frame point y.
 
-    size: half_space (unused; normal +z of the body frame), sphere (radius), box (half
-    extents), cylinder (radius, half length; axis = body z)."""
+    Exact Euclidean signed distances (Quilez's box/cylinder formulas): outside, the distance
+    to the nearest surface point; inside, minus the distance to the nearest face. size:
+    sphere (radius,), box (half extents; inf along z in 2D), cylinder (radius, half length)."""
     if shape == HALF_SPACE:
         return y2, 0.0, 0.0, 1.0
     if shape == SPHERE:
         r = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
-        if r == 0.0:
+        if r == 0.0:  # the centre: every direction is nearest, pick one
             return -size[0], 0.0, 0.0, 1.0
         return r - size[0], y0 / r, y1 / r, y2 / r
     if shape == BOX:
@@ -64,7 +71,7 @@ def signed_distance(shape, size, y0, y1, y2):
         s1 = 1.0 if y1 >= 0 else -1.0
         s2 = 1.0 if y2 >= 0 else -1.0
         m = max(q0, q1, q2)
-        if m <= 0.0:  # inside: nearest face
+        if m <= 0.0:  # inside: the nearest face
             if m == q0:
                 return m, s0, 0.0, 0.0
             if m == q1:
@@ -73,7 +80,7 @@ def signed_distance(shape, size, y0, y1, y2):
         a0, a1, a2 = max(q0, 0.0), max(q1, 0.0), max(q2, 0.0)
         d = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
         return d, s0 * a0 / d, s1 * a1 / d, s2 * a2 / d
-    # cylinder: a 2D box in (radial, axial)
+    # cylinder: a 2D box in (radial, axial) coordinates
     rho = math.sqrt(y0 * y0 + y1 * y1)
     e0, e1 = (y0 / rho, y1 / rho) if rho > 0.0 else (1.0, 0.0)
     qr, qa = rho - size[0], abs(y2) - size[1]
@@ -87,66 +94,69 @@ def signed_distance(shape, size, y0, y1, y2):
     return d, e0 * ar / d, e1 * ar / d, sa * aa / d
 
 
+@njit(cache=True, inline="always")
+def world_level_set(shape, size, centre, R, x0, x1, x2):
+    """phi and world-frame normal at offset ``x - c`` = (x0, x1, x2); R is body-to-world."""
+    y0 = R[0, 0] * x0 + R[1, 0] * x1 + R[2, 0] * x2  # y = R^T x
+    y1 = R[0, 1] * x0 + R[1, 1] * x1 + R[2, 1] * x2
+    y2 = R[0, 2] * x0 + R[1, 2] * x1 + R[2, 2] * x2
+    phi, m0, m1, m2 = signed_distance(shape, size, y0, y1, y2)
+    n0 = R[0, 0] * m0 + R[0, 1] * m1 + R[0, 2] * m2
+    n1 = R[1, 0] * m0 + R[1, 1] * m1 + R[1, 2] * m2
+    n2 = R[2, 0] * m0 + R[2, 1] * m1 + R[2, 2] * m2
+    return phi, n0, n1, n2
+
+
 @njit(cache=True)
-def apply_collider(velocity, mass, block_shape, origin, dx, domain_lo, shape, size, centre, R,
-                   v_lin, omega, condition, friction):
-    """Project the velocity of every node with mass inside the collider.
-
-    velocity (N, dim) and mass (N,) are flattened block arrays of shape ``block_shape``;
-    centre (3,), R (3, 3) body-to-world, v_lin, omega (3,) at the current time."""
-    dim = velocity.shape[1]
-    nz = block_shape[2] if dim == 3 else 1
-    ny = block_shape[1]
-    for n in range(velocity.shape[0]):
-        if mass[n] <= 0.0:
-            continue
-        i = n // (ny * nz)
-        j = (n // nz) % ny
-        k = n % nz
-        x0 = domain_lo[0] + (origin[0] + i) * dx - centre[0]
-        x1 = domain_lo[1] + (origin[1] + j) * dx - centre[1]
-        x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
-        # body frame: y = R^T x
-        y0 = R[0, 0] * x0 + R[1, 0] * x1 + R[2, 0] * x2
-        y1 = R[0, 1] * x0 + R[1, 1] * x1 + R[2, 1] * x2
-        y2 = R[0, 2] * x0 + R[1, 2] * x1 + R[2, 2] * x2
-        phi, m0, m1, m2 = signed_distance(shape, size, y0, y1, y2)
-        if phi > 0.0:
-            continue
-        n0 = R[0, 0] * m0 + R[0, 1] * m1 + R[0, 2] * m2
-        n1 = R[1, 0] * m0 + R[1, 1] * m1 + R[1, 2] * m2
-        n2 = R[2, 0] * m0 + R[2, 1] * m1 + R[2, 2] * m2
-        w0 = v_lin[0] + omega[1] * x2 - omega[2] * x1
-        w1 = v_lin[1] + omega[2] * x0 - omega[0] * x2
-        w2 = v_lin[2] + omega[0] * x1 - omega[1] * x0
-        u2 = velocity[n, 2] - w2 if dim == 3 else 0.0
-        r0, r1, r2 = project(velocity[n, 0] - w0, velocity[n, 1] - w1, u2, n0, n1, n2,
-                             condition, friction)
-        velocity[n, 0] = r0 + w0
-        velocity[n, 1] = r1 + w1
+def level_set_at_points(x, shape, size, centre, R, phi, normal):
+    """phi (n,) and outward normal (n, dim) of the collider at world points x (n, dim)."""
+    dim = x.shape[1]
+    for p in range(x.shape[0]):
+        x2 = x[p, 2] - centre[2] if dim == 3 else 0.0
+        f, n0, n1, n2 = world_level_set(shape, size, centre, R, x[p, 0] - centre[0],
+                                        x[p, 1] - centre[1], x2)
+        phi[p] = f
+        normal[p, 0] = n0
+        normal[p, 1] = n1
         if dim == 3:
-            velocity[n, 2] = r2 + w2
+            normal[p, 2] = n2
 
 
-def _vec3(values, dim) -> np.ndarray:
-    out = np.zeros(3)
-    out[:dim] = np.asarray(values, dtype=np.float64)[:dim]
-    return out
+@njit(cache=True)
+def project_collider(velocity, mass, use_mass, lo, hi, origin, dx, domain_lo, shape, size,
+                     centre, R, v_lin, omega, condition, friction):
+    """Project the velocity of every node inside the collider (``phi <= 0``), relative to the
+    collider's rigid velocity ``v + omega x (x - c)``.
 
-
-def _omega3(angular, dim) -> np.ndarray:
-    """Angular velocity as a 3-vector; in 2D the scene gives a scalar about z."""
-    if angular is None:
-        return np.zeros(3)
-    if dim == 2:
-        value = float(np.ravel(np.asarray(angular, dtype=np.float64))[-1]) \
-            if np.ndim(angular) else float(angular)
-        return np.array([0.0, 0.0, value])
-    return np.asarray(angular, dtype=np.float64).reshape(3)
+    velocity (n0, n1, n2, dim) and mass (n0, n1, n2) are 3D views of the block (n2 = 1 in 2D),
+    visited over the block-index box ``lo <= j < hi`` that bounds the collider; origin,
+    domain_lo (3,) padded; centre (3,), R (3, 3) body-to-world, v_lin, omega (3,)."""
+    dim = velocity.shape[3]
+    for i in range(lo[0], hi[0]):
+        x0 = domain_lo[0] + (origin[0] + i) * dx - centre[0]
+        for j in range(lo[1], hi[1]):
+            x1 = domain_lo[1] + (origin[1] + j) * dx - centre[1]
+            for k in range(lo[2], hi[2]):
+                if use_mass and mass[i, j, k] <= 0.0:
+                    continue
+                x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
+                phi, n0, n1, n2 = world_level_set(shape, size, centre, R, x0, x1, x2)
+                if phi > 0.0:
+                    continue
+                w0 = v_lin[0] + omega[1] * x2 - omega[2] * x1
+                w1 = v_lin[1] + omega[2] * x0 - omega[0] * x2
+                w2 = v_lin[2] + omega[0] * x1 - omega[1] * x0
+                u2 = velocity[i, j, k, 2] - w2 if dim == 3 else 0.0
+                r0, r1, r2 = project(velocity[i, j, k, 0] - w0, velocity[i, j, k, 1] - w1, u2,
+                                     n0, n1, n2, condition, friction)
+                velocity[i, j, k, 0] = r0 + w0
+                velocity[i, j, k, 1] = r1 + w1
+                if dim == 3:
+                    velocity[i, j, k, 2] = r2 + w2
 
 
 class Collider:
-    """One analytic obstacle from a scene's ``[[colliders]]`` entry."""
+    """One analytic obstacle from a scene's ``[[colliders]]`` entry (a `ColliderSpec`)."""
 
     name = "collider"
 
@@ -157,53 +167,104 @@ class Collider:
         self.shape = SHAPES[spec.shape]
         self.condition = CONDITIONS[spec.condition]
         self.friction = float(spec.friction)
-        self.velocity = _vec3(spec.velocity or (0.0,) * dim, dim)
-        self.omega = _omega3(spec.angular_velocity, dim)
+        self.velocity = vec3(spec.velocity, dim)
+        self.omega = omega3(spec.angular_velocity, dim)
         self.start = float(spec.start)
         self.end = float(spec.end)
         self.size = np.zeros(3)
         R0 = np.eye(3)
         if self.shape == HALF_SPACE:
-            self.centre0 = _vec3(p["point"], dim)
-            R0 = rotation_taking_z_to(_vec3(p["normal"], dim))
+            self.centre0 = vec3(p["point"], dim)
+            R0 = rotation_taking_z_to(vec3(p["normal"], dim))
         else:
-            self.centre0 = _vec3(p["center"], dim)
+            self.centre0 = vec3(p["center"], dim)
         if self.shape == SPHERE:
             self.size[0] = float(p["radius"])
         elif self.shape == BOX:
             self.size[:dim] = np.asarray(p["half_extents"], dtype=np.float64)
             if dim == 2:
-                self.size[2] = 1.0  # any positive extent: z is always 0 in 2D
+                # Unbounded along z: z = 0 in 2D, and a finite extent would make the z face
+                # the "nearest face" deep inside a wide box.
+                self.size[2] = np.inf
             R0 = _initial_rotation(p.get("rotation"), dim)
         elif self.shape == CYLINDER:
             self.size[0] = float(p["radius"])
             self.size[1] = float(p["half_length"])
-            R0 = rotation_taking_z_to(_vec3(p["axis"], dim))
+            R0 = rotation_taking_z_to(vec3(p["axis"], dim))
         self.R0 = R0
 
     def position(self, t: float) -> np.ndarray:
-        return self.centre0 + self.velocity * t
+        """Centre (the half-space's point) at time t, shape (dim,)."""
+        return (self.centre0 + self.velocity * t)[: self.dim]
 
     def rotation(self, t: float) -> np.ndarray:
+        """Body-to-world rotation ``R(t) = exp(t [omega]x) R0``, shape (3, 3); in 2D the
+        upper-left 2x2 block is the in-plane rotation by ``angle0 + omega t`` (for a
+        half-space R0 also turns body z onto the in-plane normal)."""
         return rotation_matrix(self.omega * t) @ self.R0
 
-    def apply(self, velocity, origin, dx, domain_lo, t, dt, mass) -> None:
+    def active(self, t: float) -> bool:
+        return self.start <= t <= self.end
+
+    def level_set(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """phi (n,) and outward unit normal (n, dim) at world points x (n, dim), time t."""
+        x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, self.dim)
+        phi = np.empty(len(x))
+        normal = np.zeros((len(x), self.dim))
+        level_set_at_points(x, self.shape, self.size, vec3(self.position(t), self.dim),
+                            self.rotation(t), phi, normal)
+        return phi, normal
+
+    def apply(self, velocity: np.ndarray, origin, dx: float, domain_lo, t: float, dt: float,
+              mass: np.ndarray | None = None) -> None:
+        """Project in place the velocity (block + (dim,)) of the nodes inside the collider.
+
+        The collider is placed where it is at the END of the step, ``t + dt``: the grid
+        velocity computed now moves the material from t to t + dt, so the nodes that must not
+        move into the obstacle are those inside it at t + dt. Evaluating at t would let a
+        moving collider sweep over material for one step before pushing it (Stomakhin 2013
+        §8 uses the same choice). The active window is checked at the same time."""
         t_end = t + dt
-        if not (self.start <= t_end <= self.end):
+        if not self.active(t_end):
             return
-        dim = velocity.shape[-1]
-        lo = np.zeros(3)
-        lo[:dim] = domain_lo
+        dim = self.dim
+        v3 = block3(velocity, dim)
+        m3, use_mass = mass3(mass, dim)
         org = np.zeros(3, dtype=np.int64)
         org[:dim] = origin
-        shape = np.ones(3, dtype=np.int64)
-        shape[:dim] = velocity.shape[:-1]
-        apply_collider(velocity.reshape(-1, dim), mass.reshape(-1), shape, org, dx, lo,
-                       self.shape, self.size, self.position(t_end), self.rotation(t_end),
-                       self.velocity, self.omega, self.condition, self.friction)
+        lo_x = vec3(domain_lo, dim)
+        centre, R = vec3(self.position(t_end), dim), self.rotation(t_end)
+        lo, hi = self._node_box(centre, R, org, dx, lo_x, np.array(v3.shape[:3]))
+        if np.any(hi <= lo):
+            return
+        project_collider(v3, m3, use_mass, lo, hi, org, float(dx), lo_x, self.shape, self.size,
+                         centre, R, self.velocity, self.omega, self.condition, self.friction)
+
+    def _node_box(self, centre, R, origin, dx, domain_lo, shape):
+        """Block-index box of the nodes that can be inside: the collider's world bounding
+        box, widened by a node against round-off; the whole block for a half-space."""
+        lo = np.zeros(3, dtype=np.int64)
+        hi = shape.astype(np.int64)
+        if self.shape == HALF_SPACE:
+            return lo, hi
+        d = self.dim
+        if self.shape == SPHERE:
+            extent = np.full(d, self.size[0])
+        elif self.shape == BOX:
+            extent = np.abs(R[:d, :d]) @ self.size[:d]
+        else:
+            axis = R[:, 2]
+            extent = np.abs(axis) * self.size[1] + self.size[0] * np.sqrt(
+                np.maximum(0.0, 1.0 - axis * axis))
+        first = np.floor((centre[:d] - extent - domain_lo[:d]) / dx).astype(np.int64) - 1
+        last = np.ceil((centre[:d] + extent - domain_lo[:d]) / dx).astype(np.int64) + 1
+        lo[:d] = np.clip(first - origin[:d], 0, shape[:d])
+        hi[:d] = np.clip(last - origin[:d] + 1, 0, shape[:d])
+        return lo, hi
 
 
 def _initial_rotation(rotation, dim) -> np.ndarray:
+    """R0 of a box: 2D angle (radians) about z, or 3D rotation vector."""
     if rotation is None:
         return np.eye(3)
     if dim == 2:

@@ -1,15 +1,26 @@
-"""Particle sets with prescribed rigid motion (hold the ends of a sponge and twist one,
-000 Fig. 5.1).
+"""Particle sets with prescribed rigid motion: hold the ends of a sponge and twist one
+(000 Fig. 5.1).
 
-The Dirichlet data is carried by particles but imposed on the grid: every node in the B-spline
-support of a marked particle gets the set's rigid velocity ``v + omega x (x - c(t))``. G2P then
-gives each marked particle exactly that rigid velocity and velocity gradient (partition of unity
-and linear completeness of B-splines reproduce a linear field exactly), so its F follows the
-rigid motion, and neighbouring free particles feel a clamped boundary. Overwriting particle
-velocities after G2P instead would leave the nodes free and the clamp soft.
+The Dirichlet data is carried by particles (the per-particle int field ``prescribed``: the set
+index, or -1) but imposed on the grid: every node in the B-spline support of a marked particle
+gets the set's rigid velocity ``v + omega x (x_i - c(t))``, ``c(t) = center + v t``.
 
-The node marks are counts scattered like mass and summed across ranks, so an owner knows that
-a node is clamped even when the marked particles live on another rank.
+Why on the nodes: G2P gives a particle ``v_p = sum_i w_ip v_i`` and ``grad v_p =
+sum_i v_i (grad w_ip)^T``. B-splines are a partition of unity (``sum_i w_ip = 1``,
+``sum_i grad w_ip = 0``) and reproduce linear functions (``sum_i w_ip x_i = x_p``,
+``sum_i x_i (grad w_ip)^T = I``; 000 §3.2). A rigid velocity is linear in x, so a particle
+whose whole support is tagged gets exactly ``v + omega x (x_p - c)`` and exactly
+``grad v = [omega]x``: its position, and through ``F <- (I + dt grad v) F`` its deformation
+gradient, follow the rigid motion, and the free particles next to the set feel a clamped
+boundary through the shared nodes. Overwriting particle velocities after G2P instead would
+leave the nodes free: neighbours would see a soft clamp, and the set's own ``grad v`` (hence F
+and stress) would come from the unconstrained grid.
+
+Two forms of the node tags:
+- `mark_nodes` / `apply_prescribed`: one int grid ``node_tag`` (-1 = free) for all sets;
+- `PrescribedSet.scatter` / `.apply`, used by `Simulation`: one float count field per set,
+  scattered like mass, so `Domain.sum_ghosts_to_owners` tells an owner that a node is clamped
+  even when the marked particles live on another rank (an int tag has no such sum).
 """
 
 from __future__ import annotations
@@ -18,97 +29,199 @@ import numpy as np
 from numba import njit
 
 from ..kernels.shape import stencil_base
+from ._block import block3, omega3, vec3
+
+
+@njit(cache=True, inline="always")
+def rigid_velocity(v_lin, omega, x0, x1, x2):
+    """``v + omega x r`` at offset r = (x0, x1, x2) from the centre."""
+    return (v_lin[0] + omega[1] * x2 - omega[2] * x1,
+            v_lin[1] + omega[2] * x0 - omega[0] * x2,
+            v_lin[2] + omega[0] * x1 - omega[1] * x0)
+
+
+@njit(cache=True, inline="always")
+def support_box(x, p, order, inv_dx, domain_lo, origin, n0, n1, n2):
+    """Block-index ranges [a0, b0) x [a1, b1) x [a2, b2) of particle p's B-spline support
+    (ARCHITECTURE.md), clipped to the block (n0, n1, n2); one node along z in 2D."""
+    s = order + 1
+    c0 = stencil_base((x[p, 0] - domain_lo[0]) * inv_dx, order) - origin[0]
+    c1 = stencil_base((x[p, 1] - domain_lo[1]) * inv_dx, order) - origin[1]
+    c2, s2 = 0, 1
+    if x.shape[1] == 3:
+        c2 = stencil_base((x[p, 2] - domain_lo[2]) * inv_dx, order) - origin[2]
+        s2 = s
+    return (max(c0, 0), min(c0 + s, n0), max(c1, 0), min(c1 + s, n1), max(c2, 0),
+            min(c2 + s2, n2))
 
 
 @njit(cache=True)
-def scatter_marks(x, prescribed, set_index, order, dx, domain_lo, origin, block_shape, marks):
-    """Add 1 to ``marks`` (flattened block) at every support node of each particle whose
-    ``prescribed`` equals ``set_index``."""
-    dim = x.shape[1]
+def mark_nodes_kernel(x, prescribed_index, origin, dx, domain_lo, order, node_tag):
+    """Raise ``node_tag`` (n0, n1, n2) to the set index of every marked particle whose support
+    holds the node; origin, domain_lo (3,) padded. Support nodes outside the block are
+    skipped (a rank's block always holds its own particles' support)."""
     inv_dx = 1.0 / dx
-    s = order + 1
-    nz = block_shape[2] if dim == 3 else 1
-    ny = block_shape[1]
+    n0, n1, n2 = node_tag.shape
+    for p in range(x.shape[0]):
+        tag = prescribed_index[p]
+        if tag < 0:
+            continue
+        a0, b0, a1, b1, a2, b2 = support_box(x, p, order, inv_dx, domain_lo, origin, n0, n1, n2)
+        for i in range(a0, b0):
+            for j in range(a1, b1):
+                for k in range(a2, b2):
+                    if node_tag[i, j, k] < tag:
+                        node_tag[i, j, k] = tag
+
+
+def mark_nodes(x: np.ndarray, prescribed_index: np.ndarray, origin, dx: float, domain_lo,
+               order: int, node_tag: np.ndarray) -> None:
+    """Tag every node in the B-spline support of a marked particle with its set index.
+
+    x (n, dim) positions; prescribed_index (n,) int set index or -1; node_tag (block) int,
+    filled with -1 by the owner before marking. Support (ARCHITECTURE.md): quadratic
+    ``base = floor(xi - 1/2)``, nodes ``base..base+2``; cubic ``base = floor(xi) - 1``, nodes
+    ``base..base+3``, ``xi = (x - domain_lo) / dx``. Where two sets' supports overlap the
+    higher index wins, whatever the particle order."""
+    dim = x.shape[1]
+    org = np.zeros(3, dtype=np.int64)
+    org[:dim] = origin
+    mark_nodes_kernel(x, prescribed_index, org, float(dx), vec3(domain_lo, dim), int(order),
+                      block3(node_tag, dim))
+
+
+@njit(cache=True)
+def apply_prescribed_kernel(velocity, node_tag, centres, velocities, omegas, origin, dx,
+                            domain_lo, t):
+    """Tagged nodes get their set's rigid velocity. velocity (n0, n1, n2, dim), node_tag
+    (n0, n1, n2); centres (initial), velocities, omegas (S, 3); origin, domain_lo (3,)."""
+    dim = velocity.shape[3]
+    n0, n1, n2 = node_tag.shape
+    for i in range(n0):
+        for j in range(n1):
+            for k in range(n2):
+                s = node_tag[i, j, k]
+                if s < 0:
+                    continue
+                x0 = domain_lo[0] + (origin[0] + i) * dx - (centres[s, 0] + velocities[s, 0] * t)
+                x1 = domain_lo[1] + (origin[1] + j) * dx - (centres[s, 1] + velocities[s, 1] * t)
+                x2 = 0.0
+                if dim == 3:
+                    x2 = domain_lo[2] + (origin[2] + k) * dx - (centres[s, 2]
+                                                                + velocities[s, 2] * t)
+                w0, w1, w2 = rigid_velocity(velocities[s], omegas[s], x0, x1, x2)
+                velocity[i, j, k, 0] = w0
+                velocity[i, j, k, 1] = w1
+                if dim == 3:
+                    velocity[i, j, k, 2] = w2
+
+
+def apply_prescribed(velocity: np.ndarray, node_tag: np.ndarray, centres: np.ndarray,
+                     velocities: np.ndarray, omegas: np.ndarray, origin, dx: float, domain_lo,
+                     t: float) -> None:
+    """Set every tagged node's velocity (block + (dim,), in place) to its set's rigid velocity
+    ``v_s + omega_s x (x_i - c_s(t))``, ``c_s(t) = centres[s] + v_s t``.
+
+    centres, velocities, omegas: (S, 3) (2D: z components 0, omega along z), e.g. from
+    `PrescribedSet.parameters`. ``t`` is the START of the step: the node velocity moves the
+    particles from where they are at t, so the rigid field must be centred where the set is
+    at t (centring at t + dt would add a spurious ``-dt omega x v`` every step)."""
+    dim = velocity.shape[-1]
+    org = np.zeros(3, dtype=np.int64)
+    org[:dim] = origin
+    apply_prescribed_kernel(block3(velocity, dim), block3(node_tag, dim),
+                            np.ascontiguousarray(centres, dtype=np.float64),
+                            np.ascontiguousarray(velocities, dtype=np.float64),
+                            np.ascontiguousarray(omegas, dtype=np.float64), org, float(dx),
+                            vec3(domain_lo, dim), float(t))
+
+
+@njit(cache=True)
+def scatter_marks(x, prescribed, set_index, order, dx, domain_lo, origin, marks):
+    """Add 1 to ``marks`` (n0, n1, n2) at every support node of each particle whose
+    ``prescribed`` equals ``set_index``; origin, domain_lo (3,) padded."""
+    inv_dx = 1.0 / dx
+    n0, n1, n2 = marks.shape
     for p in range(x.shape[0]):
         if prescribed[p] != set_index:
             continue
-        b0 = stencil_base((x[p, 0] - domain_lo[0]) * inv_dx, order) - origin[0]
-        b1 = stencil_base((x[p, 1] - domain_lo[1]) * inv_dx, order) - origin[1]
-        b2 = 0
-        s2 = 1
-        if dim == 3:
-            b2 = stencil_base((x[p, 2] - domain_lo[2]) * inv_dx, order) - origin[2]
-            s2 = s
-        for i in range(s):
-            for j in range(s):
-                for k in range(s2):
-                    marks[((b0 + i) * ny + (b1 + j)) * nz + (b2 + k)] += 1.0
+        a0, b0, a1, b1, a2, b2 = support_box(x, p, order, inv_dx, domain_lo, origin, n0, n1, n2)
+        for i in range(a0, b0):
+            for j in range(a1, b1):
+                for k in range(a2, b2):
+                    marks[i, j, k] += 1.0
 
 
 @njit(cache=True)
-def impose_rigid_velocity(velocity, marks, block_shape, origin, dx, domain_lo, centre, v_lin,
-                          omega):
-    """Nodes with a mark get ``v + omega x (x - centre)``; velocity (N, dim) flattened."""
-    dim = velocity.shape[1]
-    nz = block_shape[2] if dim == 3 else 1
-    ny = block_shape[1]
-    for n in range(velocity.shape[0]):
-        if marks[n] <= 0.0:
-            continue
-        i = n // (ny * nz)
-        j = (n // nz) % ny
-        k = n % nz
+def impose_rigid_velocity(velocity, marks, origin, dx, domain_lo, centre, v_lin, omega):
+    """Nodes with ``marks > 0`` get ``v + omega x (x - centre)``; velocity (n0, n1, n2, dim),
+    marks (n0, n1, n2); origin, domain_lo, centre, v_lin, omega (3,)."""
+    dim = velocity.shape[3]
+    n0, n1, n2 = marks.shape
+    for i in range(n0):
         x0 = domain_lo[0] + (origin[0] + i) * dx - centre[0]
-        x1 = domain_lo[1] + (origin[1] + j) * dx - centre[1]
-        x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
-        velocity[n, 0] = v_lin[0] + omega[1] * x2 - omega[2] * x1
-        velocity[n, 1] = v_lin[1] + omega[2] * x0 - omega[0] * x2
-        if dim == 3:
-            velocity[n, 2] = v_lin[2] + omega[0] * x1 - omega[1] * x0
+        for j in range(n1):
+            x1 = domain_lo[1] + (origin[1] + j) * dx - centre[1]
+            for k in range(n2):
+                if marks[i, j, k] <= 0.0:
+                    continue
+                x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
+                w0, w1, w2 = rigid_velocity(v_lin, omega, x0, x1, x2)
+                velocity[i, j, k, 0] = w0
+                velocity[i, j, k, 1] = w1
+                if dim == 3:
+                    velocity[i, j, k, 2] = w2
 
 
 class PrescribedSet:
-    """A set of particles (those initially inside ``region``) moving rigidly."""
+    """The particles initially inside ``region`` move rigidly: centre ``c(t) = center + v t``
+    (``center`` defaults to the region's middle), angular velocity ``omega`` about it."""
 
     def __init__(self, spec, index: int, dim: int):
-        from .colliders import _omega3, _vec3
-
         self.spec = spec
         self.index = index
         self.dim = dim
         self.lower = np.asarray(spec.region["lower"], dtype=np.float64)
         self.upper = np.asarray(spec.region["upper"], dtype=np.float64)
         centre = spec.center if spec.center is not None else (self.lower + self.upper) / 2
-        self.centre0 = _vec3(centre, dim)
-        self.velocity = _vec3(spec.velocity or (0.0,) * dim, dim)
-        self.omega = _omega3(spec.angular_velocity, dim)
-        self.mark_field = f"prescribed_{index}"
+        self.centre0 = vec3(centre, dim)
+        self.velocity = vec3(spec.velocity, dim)
+        self.omega = omega3(spec.angular_velocity, dim)
+        self.mark_field = f"prescribed_{index}"  # the float count grid field (Simulation)
 
-    def select(self, x: np.ndarray) -> np.ndarray:
-        return np.all((x >= self.lower) & (x <= self.upper), axis=1)
+    def select(self, x0: np.ndarray) -> np.ndarray:
+        """Boolean mask (n,) of the particles at x0 (n, dim) inside the region (closed)."""
+        return np.all((x0 >= self.lower) & (x0 <= self.upper), axis=1)
 
     def centre(self, t: float) -> np.ndarray:
+        """Centre at time t, padded to 3 components."""
         return self.centre0 + self.velocity * t
 
     def scatter(self, particles, grid, order: int) -> None:
+        """Count, per node, this set's particles whose support holds it (after P2G)."""
+        org = np.zeros(3, dtype=np.int64)
+        org[: self.dim] = grid.origin
         scatter_marks(particles["x"], particles["prescribed"], self.index, order, grid.dx,
-                      grid.domain_lo, grid.origin, _shape3(grid), grid[self.mark_field].reshape(-1))
+                      vec3(grid.domain_lo, self.dim), org,
+                      block3(grid[self.mark_field], self.dim))
 
     def apply(self, velocity, origin, dx, domain_lo, t, dt, grid) -> None:
-        dim = velocity.shape[-1]
-        lo = np.zeros(3)
-        lo[:dim] = domain_lo
+        """Impose the rigid velocity on the nodes this set marked, centred at ``c(t)`` (the
+        start of the step; see `apply_prescribed`). Called after walls and colliders."""
         org = np.zeros(3, dtype=np.int64)
-        org[:dim] = origin
-        impose_rigid_velocity(velocity.reshape(-1, dim), grid[self.mark_field].reshape(-1),
-                              _shape3(grid), org, dx, lo, self.centre(t + dt), self.velocity,
-                              self.omega)
+        org[: self.dim] = origin
+        impose_rigid_velocity(block3(velocity, self.dim), block3(grid[self.mark_field], self.dim),
+                              org, float(dx), vec3(domain_lo, self.dim), self.centre(t),
+                              self.velocity, self.omega)
 
 
-def _shape3(grid) -> np.ndarray:
-    shape = np.ones(3, dtype=np.int64)
-    shape[: grid.dim] = grid.shape
-    return shape
+def parameters(sets: list[PrescribedSet]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centres, velocities, omegas), each (S, 3), in set-index order, for `apply_prescribed`."""
+    sets = sorted(sets, key=lambda s: s.index)
+    if not sets:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
+    return (np.array([s.centre0 for s in sets]), np.array([s.velocity for s in sets]),
+            np.array([s.omega for s in sets]))
 
 
 def mark_prescribed_particles(scene, particles) -> None:

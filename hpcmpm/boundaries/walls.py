@@ -1,61 +1,77 @@
 """Domain walls: the faces of the domain box act on the grid nodes on or beyond them
-(global index ``i <= 0`` on a lower face, ``i >= n_cells`` on an upper face)."""
+(global index ``i <= 0`` on a lower face, ``i >= n_cells`` on an upper face; ARCHITECTURE.md).
+
+Each face is a static obstacle whose outward normal points into the domain; the projection is
+`contact.project` (Stomakhin 2013 §8): sticky zeroes the velocity, slip removes its normal
+component, separate removes it only for nodes moving out of the domain and applies Coulomb
+friction to the tangential part.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
+from ._block import block3, mass3
 from .contact import CONDITIONS, project
 
 
 @njit(cache=True)
-def apply_face(velocity, mass, axis, normal_sign, condition, friction):
-    """Apply one wall to every node of ``velocity`` (flattened (N, dim) view of the slab
-    beyond the face). ``normal_sign`` is the outward normal of the obstacle (+1 on a lower
-    face: the wall pushes towards +axis)."""
-    dim = velocity.shape[1]
-    for n in range(velocity.shape[0]):
-        if mass[n] <= 0.0:
-            continue
-        n0 = normal_sign if axis == 0 else 0.0
-        n1 = normal_sign if axis == 1 else 0.0
-        n2 = normal_sign if axis == 2 else 0.0
-        v2 = velocity[n, 2] if dim == 3 else 0.0
-        r0, r1, r2 = project(velocity[n, 0], velocity[n, 1], v2, n0, n1, n2, condition,
-                             friction)
-        velocity[n, 0] = r0
-        velocity[n, 1] = r1
-        if dim == 3:
-            velocity[n, 2] = r2
+def project_face(velocity, mass, use_mass, lo, hi, axis, normal_sign, condition, friction):
+    """Project the velocity of every node in the index box ``lo <= j < hi`` (block indices)
+    against one wall.
+
+    velocity (n0, n1, n2, dim) and mass (n0, n1, n2) are 3D views of the block (n2 = 1 in 2D);
+    ``normal_sign`` is the wall's outward normal along ``axis`` (+1 on a lower face: the wall
+    pushes towards +axis). Nodes with zero mass are skipped when ``use_mass``."""
+    dim = velocity.shape[3]
+    n0 = normal_sign if axis == 0 else 0.0
+    n1 = normal_sign if axis == 1 else 0.0
+    n2 = normal_sign if axis == 2 else 0.0
+    for i in range(lo[0], hi[0]):
+        for j in range(lo[1], hi[1]):
+            for k in range(lo[2], hi[2]):
+                if use_mass and mass[i, j, k] <= 0.0:
+                    continue
+                v2 = velocity[i, j, k, 2] if dim == 3 else 0.0
+                r0, r1, r2 = project(velocity[i, j, k, 0], velocity[i, j, k, 1], v2,
+                                     n0, n1, n2, condition, friction)
+                velocity[i, j, k, 0] = r0
+                velocity[i, j, k, 1] = r1
+                if dim == 3:
+                    velocity[i, j, k, 2] = r2
 
 
 class Walls:
-    """The 2*dim faces of the domain box, each sticky, slip or separating with friction."""
+    """The 2*dim faces of the domain box (order x-, x+, y-, y+, z-, z+), each sticky, slip or
+    separate with a Coulomb friction coefficient."""
 
     name = "walls"
 
     def __init__(self, faces, n_cells):
         self.faces = [(CONDITIONS[f.condition], float(f.friction)) for f in faces]
         self.n_cells = np.asarray(n_cells, dtype=np.int64)
+        if len(self.faces) != 2 * len(self.n_cells):
+            raise ValueError(f"walls need {2 * len(self.n_cells)} faces, got {len(self.faces)}")
 
-    def apply(self, velocity, origin, dx, domain_lo, t, dt, mass) -> None:
+    def apply(self, velocity: np.ndarray, origin, dx: float, domain_lo, t: float, dt: float,
+              mass: np.ndarray | None = None) -> None:
+        """Act in place on ``velocity`` (block + (dim,)) whose node j has global index
+        ``origin + j``; ``mass`` (block) lets massless nodes be skipped. Static: t, dt unused."""
         dim = velocity.shape[-1]
-        shape = np.asarray(velocity.shape[:-1])
+        v3 = block3(velocity, dim)
+        m3, use_mass = mass3(mass, dim)
+        shape = np.array(v3.shape[:3], dtype=np.int64)
+        origin = np.asarray(origin, dtype=np.int64)
         for face, (condition, friction) in enumerate(self.faces):
             axis, upper = divmod(face, 2)
-            if upper:
-                start = self.n_cells[axis] - origin[axis]
-                lo, hi, sign = max(start, 0), shape[axis], -1.0
-            else:
-                stop = -origin[axis] + 1
-                lo, hi, sign = 0, min(stop, shape[axis]), 1.0
-            if hi <= lo:
-                continue
-            index = [slice(None)] * dim
-            index[axis] = slice(int(lo), int(hi))
-            slab_v = np.ascontiguousarray(velocity[tuple(index)])
-            slab_m = np.ascontiguousarray(mass[tuple(index)])
-            apply_face(slab_v.reshape(-1, dim), slab_m.reshape(-1), axis, sign, condition,
-                       friction)
-            velocity[tuple(index)] = slab_v
+            lo = np.zeros(3, dtype=np.int64)
+            hi = shape.copy()
+            if upper:  # block index of global node n_cells, and everything above it
+                lo[axis] = max(self.n_cells[axis] - origin[axis], 0)
+                sign = -1.0
+            else:  # global nodes <= 0
+                hi[axis] = min(1 - origin[axis], shape[axis])
+                sign = 1.0
+            if hi[axis] > lo[axis]:
+                project_face(v3, m3, use_mass, lo, hi, axis, sign, condition, friction)

@@ -1,0 +1,124 @@
+"""Coulomb friction on a separating floor decelerates a sliding body at mu * g.
+
+Reference: a rigid block sliding on a floor with Coulomb friction mu under gravity g has
+tangential speed v_t(t) = v0 - mu g t until it stops (and then stays stopped), whatever its
+mass. In MPM the floor acts on the grid (Stomakhin 2013 §8, `hpcmpm.boundaries.contact`):
+each step gravity gives a floor node v_n = -g dt, the separate condition removes it and takes
+mu |v_n| = mu g dt off the tangential speed.
+"""
+
+import types
+
+import numpy as np
+import pytest
+
+from hpcmpm.boundaries import Collider, Walls
+
+MU, G, V0, DT, STEPS = 0.3, 9.81, 2.0, 1e-3, 1000
+
+
+def slide(apply, dim, direction):
+    """One floor node, the grid update (gravity) then the boundary, STEPS times."""
+    v = np.zeros((1,) * dim + (dim,))
+    v[(0,) * dim][: dim - 1] = V0 * direction
+    history = []
+    for n in range(STEPS):
+        v[(0,) * dim][dim - 1] -= G * DT  # gravity pushes into the floor
+        apply(v, n * DT)
+        history.append(v[(0,) * dim].copy())
+    return np.array(history)
+
+
+def floor_walls(dim):
+    faces = [types.SimpleNamespace(condition="slip", friction=0.0)] * (2 * dim)
+    faces[2 * (dim - 1)] = types.SimpleNamespace(condition="separate", friction=MU)
+    return Walls(faces, [10] * dim)
+
+
+def floor_collider(dim):
+    spec = types.SimpleNamespace(name="floor", shape="half_space", condition="separate",
+                                 friction=MU, velocity=(), angular_velocity=None, start=0.0,
+                                 end=np.inf, params={"point": [0.0] * dim,
+                                                     "normal": [0.0] * (dim - 1) + [1.0]})
+    return Collider(spec, dim)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("obstacle", ["wall", "collider"])
+def test_floor_node_decelerates_at_mu_g_exactly(dim, obstacle):
+    """Kernel level: the projection gives v_t(t_n) = max(v0 - mu g t_n, 0) to round-off
+    (it is the same arithmetic as the formula, so 1e-12 over 1000 steps), the normal velocity
+    stays zero, and in 3D the tangential direction never turns."""
+    direction = np.array([1.0]) if dim == 2 else np.array([0.6, 0.8])
+    origin = np.array([5] * (dim - 1) + [0])  # a node on the floor (global index 0)
+    if obstacle == "wall":
+        boundary = floor_walls(dim)
+    else:
+        boundary = floor_collider(dim)
+    mass = np.ones((1,) * dim)
+    history = slide(lambda v, t: boundary.apply(v, origin, 0.1, np.zeros(dim), t, DT, mass),
+                    dim, direction)
+    t = DT * np.arange(1, STEPS + 1)
+    expected = np.maximum(V0 - MU * G * t, 0.0)
+    assert expected[-1] == 0.0 and expected[STEPS // 2] > 0  # it slides, then stops
+    np.testing.assert_allclose(history[:, : dim - 1], expected[:, None] * direction, rtol=0,
+                               atol=1e-12)
+    assert np.all(history[:, dim - 1] == 0.0)
+
+
+def test_elastic_block_sliding_on_a_floor_decelerates_at_mu_g(tmp_path):
+    """Full engine: a stiff Neo-Hookean block (0.2 x 0.1 m) launched at 2 m/s along a
+    separating floor with mu = 0.3, g = 10. Its centre-of-mass velocity, fitted over
+    0.1 s < t < 0.5 s (it is still sliding), decelerates at mu g = 3 m/s^2 within 2%: the
+    normal impulse the floor nodes take per step averages M g dt, the elastic wobble of the
+    block (a few percent of v) averages out in the fit. Measured: 3.010 (0.35%)."""
+    from hpcmpm.runner import simulate
+    from hpcmpm.scene import load_scene
+
+    path = tmp_path / "slide.toml"
+    path.write_text("""
+[simulation]
+dim = 2
+domain = { lower = [0.0, 0.0], upper = [2.0, 0.5] }
+dx = 0.02
+particles_per_cell = 2
+kernel = "quadratic"
+transfer = "apic"
+cfl = 0.4
+end_time = 0.5
+gravity = [0.0, -10.0]
+
+[output]
+every = 0.1
+
+[[materials]]
+name = "rubber"
+type = "neo_hookean"
+density = 1000.0
+E = 1.0e5
+nu = 0.3
+
+[[bodies]]
+name = "block"
+material = "rubber"
+shape = "box"
+lower = [0.2, 0.0]
+upper = [0.4, 0.1]
+velocity = [2.0, 0.0]
+
+[walls]
+default = "slip"
+y_lower = { condition = "separate", friction = 0.3 }
+""")
+    history = []
+
+    def observe(sim):
+        p = sim.particles
+        history.append((sim.time, (p["mass"] * p["v"][:, 0]).sum() / p["mass"].sum()))
+
+    simulate(load_scene(path), observer=observe)
+    t, vx = np.array(history).T
+    window = t > 0.1
+    slope, _ = np.polyfit(t[window], vx[window], 1)
+    assert abs(-slope - 3.0) < 0.02 * 3.0, slope
+    assert abs(vx[-1] - (2.0 - 3.0 * t[-1])) < 0.05  # the speed itself, up to the wobble
