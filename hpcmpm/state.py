@@ -127,6 +127,25 @@ class ParticleSet:
                 self._fill(dst, spec)
         self.n += m
 
+    def remove(self, index: np.ndarray) -> None:
+        """Remove the particles at ``index`` (integer indices, unique) in O(len(index)): the
+        holes are filled with particles from the tail, so the order is not kept (the next
+        sort restores it). Migration uses this: its cost follows the particles that leave."""
+        index = np.unique(np.asarray(index, dtype=np.int64))
+        k = len(index)
+        if k == 0:
+            return
+        n_new = self.n - k
+        holes = index[index < n_new]
+        tail = np.ones(k, dtype=bool)
+        tail[index[index >= n_new] - n_new] = False
+        movers = n_new + np.flatnonzero(tail)
+        for name, spec in self.specs.items():
+            data = self._data[name]
+            data[holes] = data[movers]
+            self._fill(data[n_new : self.n], spec)
+        self.n = n_new
+
     def keep(self, index: np.ndarray) -> None:
         """Keep only the particles at ``index`` (a boolean mask or integer index), in that order."""
         index = np.asarray(index)

@@ -131,9 +131,7 @@ class Domain(Communicator):
         send = pack_rows(arrays, order, row_dtype(arrays))
         recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_MIGRATE)
         if len(order):
-            stay = np.ones(particles.n, dtype=bool)
-            stay[order] = False
-            particles.keep(stay)
+            particles.remove(order)
         if len(recv):
             particles.append(unpack_rows(recv))
         return int(len(order))
