@@ -135,7 +135,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        # argparse.REMAINDER does not take a leading option (`hpcmpm bench --help`), so the
+        # bench verb collects those itself; every other verb rejects them as usual.
+        if args.verb != "bench":
+            parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+        args.bench_args = unknown + list(args.bench_args)
     configure_logging(getattr(args, "quiet", False))
     try:
         return int(args.handler(args) or 0)

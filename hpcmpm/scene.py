@@ -95,7 +95,9 @@ class PrescribedSpec:
 
 @dataclass(frozen=True)
 class Scene:
-    path: str
+    # ``path`` is where the text came from, not part of the scene: a scene parsed back from
+    # its own ``text`` (a checkpoint's copy) compares equal to the original.
+    path: str = field(compare=False)
     text: str
     dim: int
     domain_lo: tuple
@@ -107,6 +109,7 @@ class Scene:
     flip_alpha: float
     cfl: float
     dt: float | None
+    max_dt: float | None
     end_time: float
     gravity: tuple
     output: OutputSpec
@@ -291,7 +294,7 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]
 
 # -- sections ---------------------------------------------------------------------------------
 SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "transfer",
-                   "flip_alpha", "cfl", "dt", "end_time", "gravity")
+                   "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity")
 
 
 def _simulation(c: Checker, raw: dict) -> dict:
@@ -301,7 +304,8 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out: dict[str, Any] = {}
     dim = sim.get("dim")
     if dim not in (2, 3) or isinstance(dim, bool):
-        c.problem(f"{p}.dim", "missing" if dim is None else f"must be 2 or 3, got {dim!r}")
+        c.problem(f"{p}.dim", "missing" if dim is None else
+                  f"must be 2 or 3, got {_describe(dim)}")
         dim = None
     out["dim"] = dim
     domain = c.table(sim, "domain", p, required=True)
@@ -323,6 +327,7 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out["flip_alpha"] = c.number(sim, "flip_alpha", p, 0.95, low=0.0, high=1.0, low_open=False)
     out["cfl"] = c.number(sim, "cfl", p, 0.4, low=0.0, high=2.0)
     out["dt"] = c.number(sim, "dt", p, None, low=0.0)
+    out["max_dt"] = c.number(sim, "max_dt", p, None, low=0.0)
     out["end_time"] = c.number(sim, "end_time", p, low=0.0)
     out["gravity"] = c.vector(sim, "gravity", p, dim, (0.0,) * dim) if dim else None
     if out["dx"] and lo and hi:
@@ -376,11 +381,20 @@ def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
             c.problem(f"{p}.name", f"duplicate material name {name!r}")
         names.add(name)
         params = {k: v for k, v in m.items() if k not in ("name", "type", "density")}
+        mistyped = set()
+        for key, value in params.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                c.problem(f"{p}.{key}", f"must be a number, got {_describe(value)}")
+                mistyped.add(key)
         if mtype is not None:
+            # validate_params says "key: what is wrong"; the key joins the TOML path.
             for problem in validate_params(mtype, params):
-                c.problem(p, problem)
+                key, _, what = problem.partition(": ")
+                if key not in mistyped:
+                    c.problem(f"{p}.{key}", what)
         if None not in (name, mtype, density):
-            out.append(MaterialSpec(name, mtype, density, dict(params)))
+            out.append(MaterialSpec(name, mtype, density,
+                                    {k: float(v) for k, v in params.items()}))
     return tuple(out)
 
 
@@ -405,6 +419,7 @@ def _bodies(c: Checker, raw: dict, dim, materials, lo, hi, base_dir: Path) -> tu
         c.keys(b, p, COMMON_BODY_KEYS + (BODY_KEYS.get(shape, ()) if shape else
                                         tuple(k for v in BODY_KEYS.values() for k in v)))
         material = c.string(b, "material", p)
+        name = c.string(b, "name", p, f"body{i}")
         if material is not None and names and material not in names:
             c.problem(f"{p}.material", f"unknown material {material!r} (defined: "
                                        f"{', '.join(sorted(names))})")
@@ -422,8 +437,8 @@ def _bodies(c: Checker, raw: dict, dim, materials, lo, hi, base_dir: Path) -> tu
                     any(bh > h + 1e-12 for bh, h in zip(bhi, hi)):
                 c.problem(p, f"body lies outside the domain: its bounds {_fmt(blo)}..{_fmt(bhi)}"
                              f" exceed the domain {_fmt(lo)}..{_fmt(hi)}")
-        if None not in (shape, material, params, velocity, angular, jitter, seed):
-            out.append(BodySpec(b.get("name", f"body{i}"), material, shape, params, velocity,
+        if None not in (name, shape, material, params, velocity, angular, jitter, seed):
+            out.append(BodySpec(name, material, shape, params, velocity,
                                 angular, jitter, seed, vfield))
     return tuple(out)
 
@@ -535,6 +550,7 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
     for i, t in enumerate(c.tables(raw, "colliders", "")):
         p = f"colliders[{i}]"
         shape = c.string(t, "shape", p, choices=COLLIDER_SHAPES)
+        name = c.string(t, "name", p, f"collider{i}")
         common = ("name", "shape", "condition", "friction", "velocity", "angular_velocity",
                   "start", "end")
         c.keys(t, p, common + COLLIDER_KEYS.get(shape, ()))
@@ -564,12 +580,12 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
         angular = c.angular(t, "angular_velocity", p, dim)
         start = c.number(t, "start", p, 0.0, low=0.0, low_open=False)
         end = c.number(t, "end", p, math.inf, low=0.0, low_open=False)
-        if None in params.values() or None in (cond, friction, velocity, angular, start, end):
+        if None in params.values() or None in (name, cond, friction, velocity, angular, start, end):
             continue
         for key in ("normal", "axis"):
             if key in params and not any(params[key]):
                 c.problem(f"{p}.{key}", "must be a nonzero vector")
-        out.append(ColliderSpec(t.get("name", f"collider{i}"), shape, params, cond, friction,
+        out.append(ColliderSpec(name, shape, params, cond, friction,
                                 velocity, angular, start, end))
     return tuple(out)
 
@@ -579,18 +595,22 @@ def _prescribed(c: Checker, raw: dict, dim) -> tuple:
     for i, t in enumerate(c.tables(raw, "prescribed", "")):
         p = f"prescribed[{i}]"
         c.keys(t, p, ("name", "region", "velocity", "angular_velocity", "center"))
+        name = c.string(t, "name", p, f"prescribed{i}")
         if not dim:
             continue
         region = c.table(t, "region", p, required=True)
         c.keys(region, f"{p}.region", ("lower", "upper"))
         lower = c.vector(region, "lower", f"{p}.region", dim)
         upper = c.vector(region, "upper", f"{p}.region", dim)
+        if lower and upper and any(u <= l for l, u in zip(lower, upper)):
+            c.problem(f"{p}.region.upper", "must exceed region.lower in every component")
+            continue
         velocity = c.vector(t, "velocity", p, dim, (0.0,) * dim)
         angular = c.angular(t, "angular_velocity", p, dim)
         center = c.vector(t, "center", p, dim, None)
-        if None in (lower, upper, velocity, angular):
+        if None in (name, lower, upper, velocity, angular):
             continue
-        out.append(PrescribedSpec(t.get("name", f"prescribed{i}"),
+        out.append(PrescribedSpec(name,
                                   {"lower": lower, "upper": upper}, velocity, angular, center))
     return tuple(out)
 

@@ -9,19 +9,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import SceneError
 from ..scene import Scene, body_bounds
 from .mesh import inside_mesh
 
 
 def lattice(lower, upper, domain_lo, spacing: float) -> np.ndarray:
-    """Lattice points ``domain_lo + (k + 1/2) spacing`` inside the box [lower, upper]."""
+    """Lattice points ``domain_lo + (k + 1/2) spacing`` in the half-open box [lower, upper).
+
+    Half-open so that two bodies sharing a face never both take (or both miss) a point that
+    lies exactly on it; the integer range decides membership, not a float comparison."""
     axes = []
     for lo, hi, origin in zip(lower, upper, domain_lo):
-        k0 = int(np.floor((lo - origin) / spacing - 0.5)) + 1
+        k0 = int(np.ceil((lo - origin) / spacing - 0.5))
         k1 = int(np.ceil((hi - origin) / spacing - 0.5))
-        k = np.arange(k0, k1)
-        pts = origin + (k + 0.5) * spacing
-        axes.append(pts[(pts >= lo) & (pts <= hi)])
+        axes.append(origin + (np.arange(k0, max(k0, k1)) + 0.5) * spacing)
     grids = np.meshgrid(*axes, indexing="ij")
     return np.stack([g.ravel() for g in grids], axis=1)
 
@@ -29,7 +31,7 @@ def lattice(lower, upper, domain_lo, spacing: float) -> np.ndarray:
 def inside(body, x: np.ndarray, dim: int) -> np.ndarray:
     p = body.params
     if body.shape == "box":
-        return np.all((x >= p["lower"]) & (x <= p["upper"]), axis=1)
+        return np.ones(len(x), dtype=np.bool_)  # the lattice of its bounds is the box
     if body.shape == "sphere":
         return np.sum((x - np.asarray(p["center"])) ** 2, axis=1) <= p["radius"] ** 2
     if body.shape == "cylinder":
@@ -77,8 +79,12 @@ def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
     """Every body's particles: x, v, mass, vol0, group (material index), id (0..N-1 in body
     order; deterministic, so every rank computes the same ids)."""
     parts = []
-    for body in scene.bodies:
+    for index, body in enumerate(scene.bodies):
         x, vol = sample_body(body, scene)
+        if len(x) == 0:
+            raise SceneError(f"{scene.path}: bodies[{index}]: holds no particles (smaller than "
+                             f"the particle spacing dx / particles_per_cell = "
+                             f"{scene.dx / scene.particles_per_cell:g}?)")
         group = scene.material_index(body.material)
         density = scene.materials[group].density
         parts.append({"x": x, "v": initial_velocity(body, x, scene.dim), "mass": density * vol,

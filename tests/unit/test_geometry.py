@@ -1,0 +1,223 @@
+"""Body samplers: lattice placement, counts and volumes, mesh inside tests, jitter, velocities."""
+
+import math
+
+import meshio
+import numpy as np
+import pytest
+
+from hpcmpm.errors import SceneError
+from hpcmpm.geometry import sample_body, sample_scene
+from hpcmpm.scene import parse_scene
+
+CUBE_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=float)
+# Faces as outward-oriented quads, each split along a diagonal (lattice points lie on those
+# diagonals, the case that breaks a naive ray-parity test).
+CUBE_QUADS = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+CUBE_TETS = [(0, 1, 3, 7), (0, 1, 5, 7), (0, 4, 5, 7), (0, 2, 3, 7), (0, 2, 6, 7), (0, 4, 6, 7)]
+
+
+def scene_text(dim, bodies, dx=0.05, ppc=2, materials=None):
+    domain = f"{{ lower = {[0.0] * dim}, upper = {[1.0] * dim} }}"
+    materials = materials or ['name = "m"\ntype = "linear_elastic"\ndensity = 2.0\nE = 1.0\n'
+                              'nu = 0.3\n']
+    text = (f"[simulation]\ndim = {dim}\ndomain = {domain}\ndx = {dx}\n"
+            f"particles_per_cell = {ppc}\nend_time = 1.0\n")
+    text += "".join(f"[[materials]]\n{m}" for m in materials)
+    return text + "".join(f'[[bodies]]\n{b}\n' for b in bodies)
+
+
+def one_body(dim, body, **kw):
+    scene = parse_scene(scene_text(dim, ['material = "m"\n' + body], **kw), "t.toml")
+    return sample_body(scene.bodies[0], scene), scene
+
+
+def test_box_is_the_lattice_at_cell_offsets():
+    # 3 x 2 cells, ppc 2 -> 6 x 4 points at (k + 1/2) dx / 2 from the domain origin.
+    (x, vol), _ = one_body(2, 'shape = "box"\nlower = [0.1, 0.2]\nupper = [0.25, 0.3]', dx=0.05)
+    assert x.shape == (24, 2) and x.dtype == np.float64
+    np.testing.assert_allclose(np.unique(x[:, 0]), 0.1 + (np.arange(6) + 0.5) * 0.025)
+    np.testing.assert_allclose(np.unique(x[:, 1]), 0.2 + (np.arange(4) + 0.5) * 0.025)
+    np.testing.assert_array_equal(vol, np.full(24, 0.025 ** 2))
+
+
+def test_box_volume_is_exact_for_grid_aligned_boxes_3d():
+    (x, vol), _ = one_body(3, 'shape = "box"\nlower = [0.2, 0.1, 0.3]\nupper = [0.6, 0.5, 0.5]',
+                           dx=0.1, ppc=3)
+    assert len(x) == (4 * 3) * (4 * 3) * (2 * 3)
+    assert math.isclose(vol.sum(), 0.4 * 0.4 * 0.2, rel_tol=1e-12)
+
+
+def test_touching_boxes_tile_without_gaps_or_overlaps():
+    # The shared face x = 0.5625 lies exactly on a lattice point (spacing 0.125, powers of
+    # two): the half-open rule gives it to exactly one of the two boxes.
+    left = 'material = "m"\nshape = "box"\nlower = [0.25, 0.25]\nupper = [0.5625, 0.75]'
+    right = 'material = "m"\nshape = "box"\nlower = [0.5625, 0.25]\nupper = [0.75, 0.75]'
+    whole = 'material = "m"\nshape = "box"\nlower = [0.25, 0.25]\nupper = [0.75, 0.75]'
+    split = sample_scene(parse_scene(scene_text(2, [left, right], dx=0.25), "t.toml"))
+    one = sample_scene(parse_scene(scene_text(2, [whole], dx=0.25), "t.toml"))
+    assert len(split["x"]) == len(one["x"]) == 16
+    np.testing.assert_array_equal(np.unique(split["x"], axis=0), np.unique(one["x"], axis=0))
+
+
+@pytest.mark.parametrize("dim, dx", [(2, 0.01), (2, 0.02), (3, 0.025)])
+def test_sphere_volume_matches_the_analytic_volume(dim, dx):
+    """The lattice volume of a disk/ball differs from the exact one by the boundary cells
+    only: |error| <= surface area * (particle spacing h) / 2 (each boundary point's cell
+    straddles the surface by at most h/2 in the normal direction, a bound, in practice far
+    smaller as the errors cancel). We assert that bound plus the observed cancellation to
+    1%."""
+    r = 0.3
+    center = [0.5] * dim
+    (x, vol), _ = one_body(dim, f'shape = "sphere"\ncenter = {center}\nradius = {r}', dx=dx)
+    h = dx / 2
+    exact, area = (math.pi * r ** 2, 2 * math.pi * r) if dim == 2 else \
+        (4 / 3 * math.pi * r ** 3, 4 * math.pi * r ** 2)
+    assert abs(vol.sum() - exact) <= area * h / 2
+    assert abs(vol.sum() - exact) / exact < 0.01
+    assert np.all(np.sum((x - 0.5) ** 2, axis=1) <= r * r)
+
+
+def test_cylinder_volume_and_orientation():
+    r, length = 0.2, 0.5
+    body = f'shape = "cylinder"\ncenter = [0.5, 0.5, 0.5]\naxis = [1.0, 1.0, 0.0]\n' \
+           f'radius = {r}\nlength = {length}'
+    (x, vol), _ = one_body(3, body, dx=0.02)
+    h = 0.01
+    exact = math.pi * r * r * length
+    area = 2 * math.pi * r * length + 2 * math.pi * r * r
+    assert abs(vol.sum() - exact) <= area * h / 2
+    a = np.array([1.0, 1.0, 0.0]) / math.sqrt(2)
+    along = (x - 0.5) @ a
+    assert np.all(np.abs(along) <= length / 2)
+
+
+def test_cylinder_is_rejected_in_2d():
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.shape: cylinder bodies need dim = 3"):
+        one_body(2, 'shape = "cylinder"\ncenter = [0.5, 0.5]\naxis = [1.0, 0.0]\n'
+                    'radius = 0.1\nlength = 0.2')
+
+
+def write_cube(tmp_path, name, kind, lo, hi):
+    points = lo + CUBE_CORNERS * (np.asarray(hi) - np.asarray(lo))
+    if kind == "triangle":
+        cells = [t for q in CUBE_QUADS for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))]
+    else:
+        cells = CUBE_TETS
+    path = tmp_path / name
+    meshio.write(str(path), meshio.Mesh(points, [(kind, np.array(cells))]))
+    return path
+
+
+@pytest.mark.parametrize("name, kind", [("cube.stl", "triangle"), ("cube.obj", "triangle"),
+                                        ("cube.vtk", "tetra")])
+def test_mesh_cube_gives_the_box_particles(tmp_path, name, kind):
+    lo, hi = [0.2, 0.3, 0.25], [0.6, 0.55, 0.65]
+    path = write_cube(tmp_path, name, kind, lo, hi)
+    box = f'shape = "box"\nlower = {lo}\nupper = {hi}'
+    (xb, vb), _ = one_body(3, box, dx=0.05)
+    (xm, vm), _ = one_body(3, f'shape = "mesh"\nfile = "{path}"', dx=0.05)
+    assert len(xb) == 8 * 5 * 8 * 8
+    np.testing.assert_array_equal(np.unique(xm, axis=0), np.unique(xb, axis=0))
+    np.testing.assert_array_equal(vm, vb)
+
+
+def test_mesh_inside_test_ignores_orientation_and_applies_scale_translate(tmp_path):
+    # Inward-facing triangles (reversed) give the same set; scale 0.5 + translate moves the
+    # unit cube onto [0.25, 0.75]^3.
+    tris = [t for q in CUBE_QUADS for t in ((q[0], q[2], q[1]), (q[0], q[3], q[2]))]
+    path = tmp_path / "unit.stl"
+    meshio.write(str(path), meshio.Mesh(CUBE_CORNERS, [("triangle", np.array(tris))]))
+    (xm, _), _ = one_body(3, f'shape = "mesh"\nfile = "{path}"\nscale = 0.5\n'
+                             f'translate = [0.25, 0.25, 0.25]', dx=0.05)
+    (xb, _), _ = one_body(3, 'shape = "box"\nlower = [0.25, 0.25, 0.25]\n'
+                             'upper = [0.75, 0.75, 0.75]', dx=0.05)
+    np.testing.assert_array_equal(np.unique(xm, axis=0), np.unique(xb, axis=0))
+
+
+def test_mesh_2d_triangles(tmp_path):
+    # A square split into two triangles equals the box; a single right triangle keeps the
+    # points below its hypotenuse.
+    square = np.array([[0.2, 0.2, 0.0], [0.6, 0.2, 0.0], [0.6, 0.6, 0.0], [0.2, 0.6, 0.0]])
+    meshio.write(str(tmp_path / "sq.vtk"),
+                 meshio.Mesh(square, [("triangle", np.array([[0, 1, 2], [0, 2, 3]]))]))
+    meshio.write(str(tmp_path / "tri.vtk"),
+                 meshio.Mesh(square, [("triangle", np.array([[0, 1, 2]]))]))
+    (xm, _), _ = one_body(2, f'shape = "mesh"\nfile = "{tmp_path / "sq.vtk"}"')
+    (xb, _), _ = one_body(2, 'shape = "box"\nlower = [0.2, 0.2]\nupper = [0.6, 0.6]')
+    np.testing.assert_array_equal(np.unique(xm, axis=0), np.unique(xb, axis=0))
+    (xt, _), _ = one_body(2, f'shape = "mesh"\nfile = "{tmp_path / "tri.vtk"}"')
+    below = (xb[:, 1] - 0.2) <= (xb[:, 0] - 0.2)
+    np.testing.assert_array_equal(np.unique(xt, axis=0), np.unique(xb[below], axis=0))
+
+
+def test_mesh_path_is_relative_to_the_scene_file(tmp_path):
+    write_cube(tmp_path, "cube.vtk", "tetra", [0.2] * 3, [0.4] * 3)
+    scene_file = tmp_path / "s.toml"
+    scene_file.write_text(scene_text(3, ['material = "m"\nshape = "mesh"\nfile = "cube.vtk"']))
+    from hpcmpm.scene import load_scene
+
+    scene = load_scene(scene_file)
+    assert scene.bodies[0].params["file"] == str(tmp_path / "cube.vtk")
+    assert len(sample_scene(scene)["x"]) == 8 ** 3
+
+
+def test_jitter_is_reproducible_with_the_seed_and_bounded():
+    body = 'shape = "box"\nlower = [0.2, 0.2]\nupper = [0.6, 0.6]\njitter = 0.5\nseed = {}'
+    (a, _), _ = one_body(2, body.format(7))
+    (b, _), _ = one_body(2, body.format(7))
+    (c, _), _ = one_body(2, body.format(8))
+    (x0, _), _ = one_body(2, 'shape = "box"\nlower = [0.2, 0.2]\nupper = [0.6, 0.6]')
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    # Uniform in +-jitter/2 of the spacing (0.025): each point stays in its own sub-cell.
+    offset = np.abs(a - x0)
+    assert offset.max() <= 0.25 * 0.025 + 1e-15 and offset.max() > 0.2 * 0.025
+
+
+def test_sample_scene_fields_ids_groups_and_velocities():
+    materials = ['name = "soft"\ntype = "linear_elastic"\ndensity = 2.0\nE = 1.0\nnu = 0.3\n',
+                 'name = "hard"\ntype = "linear_elastic"\ndensity = 5.0\nE = 9.0\nnu = 0.3\n']
+    bodies = ['material = "hard"\nshape = "box"\nlower = [0.1, 0.1]\nupper = [0.3, 0.3]\n'
+              'velocity = [1.0, -2.0]',
+              'material = "soft"\nshape = "sphere"\ncenter = [0.7, 0.7]\nradius = 0.1\n'
+              'angular_velocity = 3.0']
+    scene = parse_scene(scene_text(2, bodies, materials=materials), "t.toml")
+    out = sample_scene(scene)
+    n0 = len(sample_body(scene.bodies[0], scene)[0])
+    n = len(out["x"])
+    assert set(out) == {"x", "v", "mass", "vol0", "group", "id"}
+    np.testing.assert_array_equal(out["id"], np.arange(n))
+    assert out["id"].dtype == np.int64 and out["group"].dtype == np.int32
+    np.testing.assert_array_equal(out["group"], [1] * n0 + [0] * (n - n0))
+    np.testing.assert_allclose(out["mass"], np.where(out["group"] == 1, 5.0, 2.0) * out["vol0"])
+    np.testing.assert_array_equal(out["v"][:n0], np.tile([1.0, -2.0], (n0, 1)))
+    # Rigid spin about the disk's centroid: v = omega e_z x (x - c), no net momentum.
+    r = out["x"][n0:] - out["x"][n0:].mean(axis=0)
+    np.testing.assert_allclose(out["v"][n0:], 3.0 * np.stack([-r[:, 1], r[:, 0]], axis=1))
+    np.testing.assert_allclose(out["v"][n0:].sum(axis=0), 0.0, atol=1e-12)
+    again = sample_scene(scene)
+    for key in out:
+        np.testing.assert_array_equal(out[key], again[key])
+
+
+def test_angular_velocity_3d_and_axial_mode_field():
+    scene = parse_scene(scene_text(3, ['material = "m"\nshape = "box"\nlower = [0.2, 0.2, 0.2]'
+                                       '\nupper = [0.4, 0.4, 0.4]\n'
+                                       'angular_velocity = [0.0, 0.0, 2.0]']), "t.toml")
+    out = sample_scene(scene)
+    r = out["x"] - out["x"].mean(axis=0)
+    np.testing.assert_allclose(out["v"], np.cross([0.0, 0.0, 2.0], r))
+    bar = parse_scene(scene_text(2, ['material = "m"\nshape = "box"\nlower = [0.0, 0.4]\n'
+                                     'upper = [0.5, 0.6]\nvelocity_field = { type = '
+                                     '"axial_mode", amplitude = 0.1, length = 0.5 }']), "t.toml")
+    out = sample_scene(bar)
+    np.testing.assert_allclose(out["v"][:, 0], 0.1 * np.sin(np.pi * out["x"][:, 0] / 1.0))
+    np.testing.assert_array_equal(out["v"][:, 1], 0.0)
+
+
+def test_a_body_smaller_than_the_spacing_is_an_error():
+    scene = parse_scene(scene_text(2, ['material = "m"\nshape = "sphere"\ncenter = [0.5, 0.5]'
+                                       '\nradius = 0.001']), "t.toml")
+    with pytest.raises(SceneError, match=r"t\.toml: bodies\[0\]: holds no particles"):
+        sample_scene(scene)
