@@ -1,0 +1,271 @@
+#!/usr/bin/env python
+"""Error versus cost: resolution x transfer x kernel sweeps on two problems with exact answers.
+
+(a) bar: axial vibration of an elastic bar (inputs/bar_2d.toml); error = relative error of the
+    first-mode period measured from the centre-of-mass velocity, as in
+    tests/verification/test_bar_vibration.py.
+(b) mms: a large-deformation manufactured solution in 1D-like 2D (Kamojjala et al. 2015;
+    Steffen et al. 2008): u(X, t) = A sin(2 pi X) sin(pi t) along x on a unit bar [0, 1]
+    fixed at both ends (sticky walls), Neo-Hookean with nu = 0 (lam = 0), so under uniaxial
+    strain F = diag(F11, 1) the first Piola stress is P11 = mu (F11 - 1/F11). The body force
+    b = d2u/dt2 - (1/rho0) dP11/dX is evaluated at each particle's reference position X and
+    applied through `Simulation.forcing`. Error = RMS displacement error at the end time,
+    divided by A.
+
+Each run is timed with perf_counter after a warm-up run that compiles every kernel. Orders are
+least-squares slopes of log(error) against log(dx).
+
+    python scripts/study_error.py            # 25, 50, 100 cells
+    python scripts/study_error.py --smoke    # 10, 20 cells, short runs (seconds)
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from hpcmpm.kernels.transfer import APIC  # noqa: E402
+from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain  # noqa: E402
+from hpcmpm.scene import load_scene, parse_scene  # noqa: E402
+from hpcmpm.simulation import Simulation  # noqa: E402
+
+TRANSFERS = ("pic", "flip", "apic", "mls")
+KERNELS = ("quadratic", "cubic")
+
+# -- (a) bar ----------------------------------------------------------------------------------
+BAR_L, BAR_PERIOD = 25.0, 10.0
+
+
+def run_bar(cells: int, transfer: str, kernel: str, end_time: float = 8.0) -> float:
+    scene = load_scene(REPO / "inputs/bar_2d.toml",
+                       [f"simulation.dx={BAR_L / cells}", f"simulation.end_time={end_time}",
+                        f'simulation.transfer="{transfer}"', f'simulation.kernel="{kernel}"'])
+    history = []
+
+    def observe(sim):
+        p = sim.particles
+        history.append((sim.time, (p["mass"] * p["v"][:, 0]).sum() / p["mass"].sum()))
+
+    run_sim(scene, end_time, observe)
+    t, v = np.array(history).T
+    i = np.flatnonzero(np.sign(v[:-1]) != np.sign(v[1:]))[:2]
+    if len(i) < 2:
+        return math.nan
+    zeros = t[i] - v[i] * (t[i + 1] - t[i]) / (v[i + 1] - v[i])
+    period = 2 * (zeros[1] - zeros[0])
+    return abs(period - BAR_PERIOD) / BAR_PERIOD
+
+
+def run_sim(scene, end_time, observer=None, setup=None) -> Simulation:
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    if setup is not None:
+        setup(sim)
+    Runner(sim, None, RunOptions(out_dir=Path("."), end_time=end_time, quiet=True),
+           observer=observer).run()
+    return sim
+
+
+# -- (b) manufactured solution ------------------------------------------------------------------
+MMS_A, MMS_MU, MMS_RHO = 0.05, 1.0, 1.0  # E = 2 mu with nu = 0
+
+
+def mms_scene(cells: int, transfer: str, kernel: str, end_time: float, cfl: float = 0.2):
+    dx = 1.0 / cells
+    height = 4 * dx
+    text = f"""
+[simulation]
+dim = 2
+domain = {{ lower = [0.0, 0.0], upper = [1.0, {height!r}] }}
+dx = {dx!r}
+particles_per_cell = 2
+kernel = "{kernel}"
+transfer = "{transfer}"
+cfl = {cfl!r}
+end_time = {end_time!r}
+
+[[materials]]
+name = "mms"
+type = "neo_hookean"
+density = {MMS_RHO!r}
+E = {2 * MMS_MU!r}
+nu = 0.0
+
+[[bodies]]
+name = "bar"
+material = "mms"
+shape = "box"
+lower = [0.0, 0.0]
+upper = [1.0, {height!r}]
+
+[walls]
+default = "slip"
+x_lower = {{ condition = "sticky" }}
+x_upper = {{ condition = "sticky" }}
+"""
+    return parse_scene(text, path="<mms>")
+
+
+def mms_u(X, t):
+    return MMS_A * np.sin(2 * np.pi * X) * np.sin(np.pi * t)
+
+
+def mms_body_force(X, t):
+    """b = d2u/dt2 - (1/rho0) dP11/dX with P11 = mu (F - 1/F), F = 1 + du/dX."""
+    s, c, st = np.sin(2 * np.pi * X), np.cos(2 * np.pi * X), np.sin(np.pi * t)
+    F = 1.0 + MMS_A * 2 * np.pi * c * st
+    dF = -MMS_A * (2 * np.pi) ** 2 * s * st
+    dP = MMS_MU * (1.0 + 1.0 / F**2) * dF
+    return -MMS_A * np.pi**2 * s * st - dP / MMS_RHO
+
+
+def run_mms(cells: int, transfer: str, kernel: str, end_time: float = 1.0) -> float:
+    scene = mms_scene(cells, transfer, kernel, end_time)
+    X0 = {}
+
+    def setup(sim):
+        p = sim.particles
+        X = p["x"][:, 0].copy()
+        X0["ids"] = p["id"].copy()
+        X0["X"] = X
+        # du/dt at t = 0 and its gradient (the affine field of APIC/MLS).
+        p["v"][:, 0] = MMS_A * np.pi * np.sin(2 * np.pi * X)
+        p["v"][:, 1] = 0.0
+        if sim.scheme >= APIC:
+            p["C"][:] = 0.0
+            p["C"][:, 0, 0] = MMS_A * np.pi * 2 * np.pi * np.cos(2 * np.pi * X)
+        order = np.argsort(X0["ids"])
+        X0["sorted_ids"], X0["sorted_X"] = X0["ids"][order], X[order]
+
+        def forcing(sim, dt):
+            q = sim.particles
+            Xq = X0["sorted_X"][np.searchsorted(X0["sorted_ids"], q["id"])]
+            q["v"][:, 0] += dt * mms_body_force(Xq, sim.time)
+
+        sim.forcing = forcing
+
+    sim = run_sim(scene, end_time, setup=setup)
+    p = sim.particles
+    X = X0["sorted_X"][np.searchsorted(X0["sorted_ids"], p["id"])]
+    err = p["x"][:, 0] - X - mms_u(X, sim.time)
+    return float(np.sqrt(np.mean(err**2)) / MMS_A)
+
+
+# -- driver -----------------------------------------------------------------------------------
+def order_of(dxs, errors) -> float:
+    dxs, errors = np.asarray(dxs, float), np.asarray(errors, float)
+    ok = np.isfinite(errors) & (errors > 0)
+    if ok.sum() < 2:
+        return math.nan
+    return float(np.polyfit(np.log(dxs[ok]), np.log(errors[ok]), 1)[0])
+
+
+def main(argv=None) -> int:
+    global MMS_A
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--smoke", action="store_true", help="tiny sizes, short runs")
+    ap.add_argument("--cells", type=int, nargs="+", help="resolutions (cells along the bar)")
+    ap.add_argument("--out-dir", default=str(REPO / "bench_results"))
+    ap.add_argument("--png", default=str(REPO / "docs/img/study_error.png"))
+    ap.add_argument("--mms-amplitude", type=float, default=MMS_A,
+                    help="A of the manufactured solution (default %(default)s)")
+    args = ap.parse_args(argv)
+    MMS_A = args.mms_amplitude
+    cells = args.cells or ([10, 20] if args.smoke else [25, 50, 100])
+    # The bar's domain [30, 2] must be a whole number of cells: 25 cells along the bar at least.
+    bar_cells = [n for n in cells if (BAR_L / n) in (1.0, 0.5, 0.25, 0.125)] or [25, 50]
+    bar_end = 8.0
+    mms_end = 0.2 if args.smoke else 1.0
+    transfers = TRANSFERS
+    kernels = KERNELS
+    problems = {"bar": (lambda n, tr, k: run_bar(n, tr, k, bar_end), lambda n: BAR_L / n,
+                        bar_cells),
+                "mms": (lambda n, tr, k: run_mms(n, tr, k, mms_end), lambda n: 1.0 / n, cells)}
+
+    # Warm-up: compile every (transfer, kernel) kernel once, so timings are run time only.
+    for tr in transfers:
+        for k in kernels:
+            run_bar(25, tr, k, 0.2)
+            run_mms(5, tr, k, 0.02)
+
+    rows = []
+    for name, (fn, dx_of, sizes) in problems.items():
+        for tr in transfers:
+            for k in kernels:
+                for n in sizes:
+                    t0 = time.perf_counter()
+                    e = fn(n, tr, k)
+                    wall = time.perf_counter() - t0
+                    rows.append({"problem": name, "transfer": tr, "kernel": k, "cells": n,
+                                 "dx": dx_of(n), "error": e, "wall_s": wall})
+                    print(f"{name:4s} {tr:5s} {k:9s} {n:4d} cells  error {e:.4e}  "
+                          f"wall {wall:.2f} s", flush=True)
+
+    orders = {}
+    for name in problems:
+        for tr in transfers:
+            for k in kernels:
+                sel = [r for r in rows if (r["problem"], r["transfer"], r["kernel"]) ==
+                       (name, tr, k)]
+                orders[(name, tr, k)] = order_of([r["dx"] for r in sel],
+                                                 [r["error"] for r in sel])
+    for r in rows:
+        r["order"] = orders[(r["problem"], r["transfer"], r["kernel"])]
+
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "study_error.csv"
+    with open(csv_path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print(f"wrote {csv_path}")
+    print("\nmeasured orders (slope of log error vs log dx):")
+    for (name, tr, k), o in orders.items():
+        print(f"  {name:4s} {tr:5s} {k:9s} {o:6.2f}")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    colors = dict(zip(transfers, ("C0", "C1", "C2", "C3")))
+    styles = {"quadratic": "o-", "cubic": "s--"}
+    for ax, name in zip(axes, problems):
+        for tr in transfers:
+            for k in kernels:
+                sel = [r for r in rows if (r["problem"], r["transfer"], r["kernel"]) ==
+                       (name, tr, k) and np.isfinite(r["error"]) and r["error"] > 0]
+                if not sel:
+                    continue
+                ax.loglog([r["wall_s"] for r in sel], [r["error"] for r in sel], styles[k],
+                          color=colors[tr],
+                          label=f"{tr}/{k} (order {orders[(name, tr, k)]:.2f})")
+        ax.set_xlabel("wall time per run [s]")
+        ax.set_ylabel("relative period error" if name == "bar"
+                      else "RMS displacement error / A")
+        ax.set_title("axial bar (period)" if name == "bar"
+                     else f"manufactured large deformation (A = {MMS_A})")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"hpcmpm error vs cost, cells {cells}")
+    fig.tight_layout()
+    png = Path(args.png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    print(f"wrote {png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
