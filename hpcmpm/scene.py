@@ -299,6 +299,13 @@ SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "trans
 
 def _simulation(c: Checker, raw: dict) -> dict:
     sim = c.table(raw, "simulation", "", required=True)
+    if not isinstance(raw.get("simulation"), dict):
+        # Reported once; every key inside would repeat it. Nothing depending on dim can be
+        # checked without it.
+        return {"dim": None, "domain_lo": None, "domain_hi": None, "dx": None,
+                "particles_per_cell": None, "kernel": None, "transfer": None,
+                "flip_alpha": None, "cfl": None, "dt": None, "max_dt": None,
+                "end_time": None, "gravity": None}
     c.keys(sim, "simulation", SIMULATION_KEYS)
     p = "simulation"
     out: dict[str, Any] = {}
@@ -311,7 +318,7 @@ def _simulation(c: Checker, raw: dict) -> dict:
     domain = c.table(sim, "domain", p, required=True)
     c.keys(domain, f"{p}.domain", ("lower", "upper"))
     lo = hi = None
-    if dim:
+    if dim and isinstance(sim.get("domain"), dict):
         lo = c.vector(domain, "lower", f"{p}.domain", dim)
         hi = c.vector(domain, "upper", f"{p}.domain", dim)
         if lo and hi and any(h <= l for l, h in zip(lo, hi)):
@@ -355,6 +362,31 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
                                  integer=True) or 2)
 
 
+def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
+                         transfer, prescribed) -> None:
+    """Each requested field must exist in this scene's particles (the writer would skip it
+    silently otherwise): a core field, a field of one of its materials, ``C`` for APIC/MLS,
+    ``prescribed`` when there are prescribed sets."""
+    from .materials import MATERIALS
+    from .state import CORE_FIELDS
+
+    if transfer is None or not materials_complete:
+        return  # a bad material or transfer is reported already; the list would mislead
+    valid = list(CORE_FIELDS)
+    for m in materials:
+        valid += [f for f in MATERIALS[m.type].fields if f not in valid]
+    if transfer in ("apic", "mls"):
+        valid.append("C")
+    if prescribed:
+        valid.append("prescribed")
+    for i, name in enumerate(output.fields):
+        if name not in valid:
+            close = difflib.get_close_matches(name, valid, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            c.problem(f"output.fields[{i}]", f"no particle field {name!r} in this scene "
+                                             f"({hint}available: {', '.join(valid)})")
+
+
 def _parallel(c: Checker, raw: dict) -> ParallelSpec:
     t = c.table(raw, "parallel", "")
     c.keys(t, "parallel", ("rebalance_threshold", "rebalance_every"))
@@ -392,7 +424,7 @@ def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
                 key, _, what = problem.partition(": ")
                 if key not in mistyped:
                     c.problem(f"{p}.{key}", what)
-        if None not in (name, mtype, density):
+        if None not in (name, mtype, density) and not mistyped:
             out.append(MaterialSpec(name, mtype, density,
                                     {k: float(v) for k, v in params.items()}))
     return tuple(out)
@@ -599,6 +631,8 @@ def _prescribed(c: Checker, raw: dict, dim) -> tuple:
         if not dim:
             continue
         region = c.table(t, "region", p, required=True)
+        if not isinstance(t.get("region"), dict):
+            continue  # reported above; its lower/upper would only repeat it
         c.keys(region, f"{p}.region", ("lower", "upper"))
         lower = c.vector(region, "lower", f"{p}.region", dim)
         upper = c.vector(region, "upper", f"{p}.region", dim)
@@ -640,6 +674,10 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     walls = _walls(c, raw, dim)
     colliders = _colliders(c, raw, dim)
     prescribed = _prescribed(c, raw, dim)
+    entries = raw.get("materials")
+    _check_output_fields(c, output, materials,
+                         isinstance(entries, list) and len(entries) == len(materials),
+                         sim["transfer"], prescribed)
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)

@@ -35,6 +35,12 @@ CASES = {
     "unknown_material_type": (GOOD.replace('type = "neo_hookean"', 'type = "neo_hooke"'),
                               "materials[0].type: unknown value 'neo_hooke'"),
     "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"), "TOML syntax error"),
+    "unknown_body_material": (GOOD.replace('material = "rubber"', 'material = "rubbr"', 1),
+                              "bodies[0].material: unknown material 'rubbr'"),
+    "unknown_transfer": (GOOD.replace('transfer = "mls"', 'transfer = "apik"'),
+                         "simulation.transfer: unknown value 'apik' (did you mean 'apic'?"),
+    "vector_components": (GOOD.replace("velocity = [0.1, 0.1]", "velocity = [0.1]", 1),
+                          "bodies[0].velocity: must have 2 components (dim = 2), got 1"),
 }
 
 
@@ -87,3 +93,53 @@ def test_output_of_another_run_is_not_overwritten(tmp_path):
     (out / "frame_000000.h5").write_text("")
     proc = hpcmpm("run", "inputs/bar_2d.toml", "--out", str(out), "--quiet")
     assert proc.returncode == 5 and "--force" in proc.stderr
+
+
+def test_set_on_the_command_line_and_its_problems():
+    proc = hpcmpm("validate", "inputs/disks_2d.toml", "--set", "simulation.dx=0.04",
+                  "--set", "bodies.0.radius=0.1")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "inputs/disks_2d.toml: ok (394 particles, 1 materials, dim 2)"
+    proc = hpcmpm("validate", "inputs/disks_2d.toml", "--set", "simulation.cfl=abc")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == ("hpcmpm: error: inputs/disks_2d.toml: simulation.cfl: "
+                                   "must be a number, got string 'abc'")
+
+
+def test_version_usage_and_bench_pass_through():
+    from hpcmpm import __version__
+
+    proc = hpcmpm("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"hpcmpm {__version__}"
+    proc = hpcmpm("validate", "inputs/bar_2d.toml", "--bogus")
+    assert proc.returncode == 2 and "unrecognized arguments: --bogus" in proc.stderr
+    proc = hpcmpm("bench", "--help")  # a leading option reaches the bench verb
+    assert proc.returncode == 0 and "usage: hpcmpm bench" in proc.stdout
+
+
+def test_main_maps_errors_and_interrupts_to_exit_codes(capsys, monkeypatch):
+    from hpcmpm import cli
+    from hpcmpm.errors import CheckpointError
+
+    def fail(args):
+        raise CheckpointError("ckpt.h5: checksum mismatch\nsecond line")
+
+    def interrupt(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_info", fail)
+    assert cli.main(["info", "x.h5"]) == CheckpointError.exit_code
+    assert capsys.readouterr().err.splitlines() == [
+        "hpcmpm: error: ckpt.h5: checksum mismatch", "hpcmpm: error: second line"]
+    monkeypatch.setattr(cli, "_info", interrupt)
+    assert cli.main(["info", "x.h5"]) == 130
+
+
+def test_rank_comes_from_the_launcher_environment(monkeypatch):
+    from hpcmpm import cli
+
+    for var in ("PMI_RANK", "OMPI_COMM_WORLD_RANK", "PMIX_RANK", "SLURM_PROCID"):
+        monkeypatch.delenv(var, raising=False)
+    assert cli._rank() == 0
+    monkeypatch.setenv("OMPI_COMM_WORLD_RANK", "3")
+    assert cli._rank() == 3

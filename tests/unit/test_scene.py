@@ -1,0 +1,242 @@
+"""Scene validation: each kind of mistake gives its own line naming the file and the TOML key;
+every problem in a file is reported at once; --set overrides; the resolved text round-trips."""
+
+import math
+from pathlib import Path
+
+import pytest
+
+from hpcmpm.errors import SceneError
+from hpcmpm.scene import (BodySpec, ColliderSpec, MaterialSpec, PrescribedSpec, Scene, WallFace,
+                          load_scene, parse_scene)
+
+GOOD = Path("inputs/disks_2d.toml").read_text()
+GOOD_3D = Path("inputs/snow_block_3d.toml").read_text()
+SPHERE_0 = 'shape = "sphere"\ncenter = [0.25, 0.25]\nradius = 0.2'
+
+
+def problems(text, overrides=()):
+    with pytest.raises(SceneError) as info:
+        parse_scene(text, "scene.toml", overrides)
+    return info.value.problems
+
+
+# One edit of a valid scene each, and the line it must produce (exactly).
+CASES = {
+    "unknown_key": (GOOD.replace("cfl = 0.4", "cfll = 0.4"),
+                    "simulation.cfll: unknown key (did you mean 'cfl'?)"),
+    "unknown_top_level": ("[outptu]\nevery = 1.0\n" + GOOD,
+                          "outptu: unknown key (did you mean 'output'?)"),
+    "unknown_material_param": (GOOD.replace("nu = 0.3", "nu = 0.3\nEE = 1.0"),
+                               "materials[0].EE: unknown key (did you mean 'E'?)"),
+    "wrong_type": (GOOD.replace("dx = 0.02", 'dx = "abc"'),
+                   "simulation.dx: must be a number, got string 'abc'"),
+    "wrong_type_material": (GOOD.replace("E = 1000.0", 'E = "abc"'),
+                            "materials[0].E: must be a number, got string 'abc'"),
+    "wrong_type_dim": (GOOD.replace("dim = 2", 'dim = "2"'),
+                       "simulation.dim: must be 2 or 3, got string '2'"),
+    "missing_end_time": (GOOD.replace("end_time = 3.0", ""), "simulation.end_time: missing"),
+    "missing_material_E": (GOOD.replace("E = 1000.0", ""), "materials[0].E: missing"),
+    "nu_half": (GOOD.replace("nu = 0.3", "nu = 0.5"), "materials[0].nu: must be < 0.5, got 0.5"),
+    "nu_minus_one": (GOOD.replace("nu = 0.3", "nu = -1.0"),
+                     "materials[0].nu: must be > -1, got -1"),
+    "density": (GOOD.replace("density = 1000.0", "density = 0.0"),
+                "materials[0].density: must be > 0.0, got 0.0"),
+    "E": (GOOD.replace("E = 1000.0", "E = -5.0"), "materials[0].E: must be > 0, got -5"),
+    "dx": (GOOD.replace("dx = 0.02", "dx = -0.02"), "simulation.dx: must be > 0.0, got -0.02"),
+    "dx_not_dividing": (GOOD.replace("dx = 0.02", "dx = 0.03"),
+                        "simulation.dx: must divide the domain size evenly"),
+    "cfl_zero": (GOOD.replace("cfl = 0.4", "cfl = 0.0"), "simulation.cfl: must be > 0.0, got 0.0"),
+    "cfl_above_two": (GOOD.replace("cfl = 0.4", "cfl = 2.5"),
+                      "simulation.cfl: must be <= 2.0, got 2.5"),
+    "end_time": (GOOD.replace("end_time = 3.0", "end_time = 0.0"),
+                 "simulation.end_time: must be > 0.0, got 0.0"),
+    "domain_upper": (GOOD.replace("upper = [1.0, 1.0]", "upper = [1.0, 0.0]"),
+                     "simulation.domain.upper: must exceed domain.lower in every component"),
+    "particles_per_cell": (GOOD.replace("particles_per_cell = 2", "particles_per_cell = 0"),
+                           "simulation.particles_per_cell: must be >= 1, got 0"),
+    "particles_per_cell_float": (GOOD.replace("particles_per_cell = 2",
+                                              "particles_per_cell = 2.5"),
+                                 "simulation.particles_per_cell: must be an integer, got float"),
+    "vector_components": (GOOD.replace("velocity = [0.1, 0.1]", "velocity = [0.1, 0.1, 0.0]"),
+                          "bodies[0].velocity: must have 2 components (dim = 2), got 3"),
+    "gravity_components": (GOOD.replace("end_time = 3.0", "end_time = 3.0\ngravity = [0.0]"),
+                           "simulation.gravity: must have 2 components (dim = 2), got 1"),
+    "body_outside": (GOOD.replace("center = [0.25, 0.25]", "center = [0.1, 0.25]"),
+                     "bodies[0]: body lies outside the domain: its bounds [-0.1, 0.05]..[0.3, "
+                     "0.45] exceed the domain [0, 0]..[1, 1]"),
+    "unknown_body_material": (GOOD.replace('material = "rubber"', 'material = "rubbr"', 1),
+                              "bodies[0].material: unknown material 'rubbr' (defined: rubber)"),
+    "unknown_kernel": (GOOD.replace('kernel = "quadratic"', 'kernel = "quintic"'),
+                       "simulation.kernel: unknown value 'quintic' (did you mean 'quadratic'? "
+                       "valid: quadratic, cubic)"),
+    "unknown_transfer": (GOOD.replace('transfer = "mls"', 'transfer = "apik"'),
+                         "simulation.transfer: unknown value 'apik' (did you mean 'apic'? "
+                         "valid: pic, flip, apic, mls)"),
+    "unknown_material_type": (GOOD.replace('type = "neo_hookean"', 'type = "neo_hooke"'),
+                              "materials[0].type: unknown value 'neo_hooke' (did you mean "
+                              "'neo_hookean'? valid: fixed_corotated, linear_elastic, "
+                              "neo_hookean, snow, stable_neo_hookean, weakly_compressible)"),
+    "unknown_shape": (GOOD.replace('shape = "sphere"', 'shape = "spher"', 1),
+                      "bodies[0].shape: unknown value 'spher' (did you mean 'sphere'? valid: "
+                      "box, sphere, cylinder, mesh)"),
+    "cylinder_in_2d": (GOOD.replace(SPHERE_0, 'shape = "cylinder"\ncenter = [0.25, 0.25]\n'
+                                              'axis = [1.0, 0.0]\nradius = 0.1\nlength = 0.1'),
+                       "bodies[0].shape: cylinder bodies need dim = 3 (in 2D use a box)"),
+    "missing_mesh": (GOOD.replace(SPHERE_0, 'shape = "mesh"\nfile = "missing.stl"'),
+                     "bodies[0].file: cannot read mesh"),
+    "wall_condition": (GOOD + 'x_lower = { condition = "stick" }\n',
+                       "walls.x_lower.condition: unknown value 'stick' (did you mean 'sticky'? "
+                       "valid: sticky, slip, separate)"),
+    "wall_face_3d_in_2d": (GOOD + 'z_lower = { condition = "sticky" }\n',
+                           "walls.z_lower: unknown key"),
+    "collider_radius": (GOOD + '[[colliders]]\nshape = "sphere"\ncenter = [0.5, 0.5]\n'
+                               'radius = -1.0\n',
+                        "colliders[0].radius: must be > 0.0, got -1.0"),
+    "collider_normal": (GOOD + '[[colliders]]\nshape = "half_space"\npoint = [0.5, 0.1]\n'
+                               'normal = [0.0, 0.0]\n',
+                        "colliders[0].normal: must be a nonzero vector"),
+    "prescribed_region": (GOOD + '[[prescribed]]\nregion = { lower = [0.5, 0.5], upper = '
+                                 '[0.4, 0.6] }\n',
+                          "prescribed[0].region.upper: must exceed region.lower in every "
+                          "component"),
+    "prescribed_missing_region": (GOOD + '[[prescribed]]\nname = "clamp"\n',
+                                  "prescribed[0].region: missing (a table is required)"),
+    "velocity_field_type": (GOOD.replace("velocity = [0.1, 0.1]", 'velocity_field = { type = '
+                                         '"axial", amplitude = 1.0, length = 1.0 }', 1),
+                            "bodies[0].velocity_field.type: unknown value 'axial'"),
+    "output_field": (GOOD.replace("every = 0.1", 'every = 0.1\nfields = ["Jp"]'),
+                     "output.fields[0]: no particle field 'Jp' in this scene (available: id, "
+                     "group, x, v, mass, vol0, F, tau, C)"),
+    "max_dt": (GOOD.replace("cfl = 0.4", "cfl = 0.4\nmax_dt = -1e-3"),
+               "simulation.max_dt: must be > 0.0, got -0.001"),
+    "checkpoint_every": (GOOD.replace("every = 0.1", "every = 0.1\ncheckpoint_every = 0"),
+                         "output.checkpoint_every: must be >= 1, got 0"),
+    "no_bodies": (GOOD[:GOOD.index("[[bodies]]")],
+                  "bodies: missing: at least one [[bodies]] table is required"),
+    "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"),
+                    "TOML syntax error: Invalid value (at line 7, column 7)"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_each_mistake_gives_one_line_naming_file_and_key(case):
+    text, expected = CASES[case]
+    lines = problems(text)
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("scene.toml: ") and expected in lines[0], lines[0]
+
+
+def test_three_dimensional_mistakes():
+    lines = problems(GOOD_3D.replace('shape = "sphere"', 'shape = "cylinder"')
+                     .replace("radius = 0.12", "radius = 0.12\naxis = [0.0, 0.0, 0.0]\n"
+                                               "half_length = 0.1"))
+    assert lines == ["scene.toml: colliders[0].axis: must be a nonzero vector"]
+    lines = problems(GOOD_3D.replace("angular_velocity", "x").replace(
+        'velocity = [0.0, 0.0, -1.2]', 'velocity = [0.0, 0.0, -1.2]\nangular_velocity = 1.0'))
+    assert lines == ["scene.toml: colliders[0].angular_velocity: must be an array of 3 "
+                     "numbers, got float 1.0"]
+
+
+def test_every_problem_in_a_file_is_reported_in_file_order():
+    text = (GOOD.replace("cfl = 0.4", "cfl = -1.0").replace('kernel = "quadratic"', 'kernl = 1')
+            .replace("nu = 0.3", "nu = 0.7").replace("center = [0.75, 0.75]", "center = [2, 2]"))
+    lines = problems(text)
+    assert [l.split(": ")[1] for l in lines] == [
+        "simulation.kernl", "simulation.cfl", "materials[0].nu", "bodies[1]"], lines
+
+
+def test_set_overrides_values_tables_and_list_items():
+    scene = parse_scene(GOOD, "s.toml", ["simulation.cfl=0.3", "materials.0.E=1e5",
+                                         'simulation.kernel="cubic"', "simulation.transfer=apic",
+                                         "bodies.1.velocity=[0.0, -0.2]", "output.every=0.5",
+                                         "walls.y_lower.condition=sticky"])
+    assert scene.cfl == 0.3 and scene.kernel == "cubic" and scene.transfer == "apic"
+    assert scene.materials[0].params["E"] == 1e5
+    assert scene.bodies[1].velocity == (0.0, -0.2)
+    assert scene.output.every == 0.5
+    assert scene.walls.faces[2] == WallFace("sticky", 0.0)
+    # The resolved text records the overrides, so a checkpoint restarts the same scene.
+    assert parse_scene(scene.text) == scene
+
+
+def test_bad_overrides_are_reported_like_file_problems():
+    lines = problems(GOOD, ["simulation.cfl=abc", "materials.3.E=1", "nonsense",
+                            "simulation.cfll=0.3"])
+    assert lines == [
+        "scene.toml: --set materials.3.E: no such key",
+        "scene.toml: --set nonsense: expected key.path=value",
+        "scene.toml: simulation.cfll: unknown key (did you mean 'cfl'?)",
+        "scene.toml: simulation.cfl: must be a number, got string 'abc'",
+    ]
+
+
+def test_load_scene_reports_the_path_and_a_missing_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(GOOD.replace("dx = 0.02", "dx = 0.0"))
+    with pytest.raises(SceneError) as info:
+        load_scene(bad)
+    assert info.value.problems == [f"{bad}: simulation.dx: must be > 0.0, got 0.0"]
+    with pytest.raises(SceneError, match="no/such.toml: no such file"):
+        load_scene("no/such.toml")
+    assert SceneError.exit_code == 2
+
+
+def test_dataclasses_and_defaults():
+    scene = parse_scene(GOOD, "s.toml")
+    assert isinstance(scene, Scene)
+    assert (scene.dim, scene.domain_lo, scene.domain_hi, scene.dx) == (2, (0.0, 0.0),
+                                                                       (1.0, 1.0), 0.02)
+    assert (scene.particles_per_cell, scene.kernel, scene.transfer) == (2, "quadratic", "mls")
+    assert scene.dt is None and scene.max_dt is None and scene.gravity == (0.0, 0.0)
+    assert scene.flip_alpha == 0.95 and scene.parallel.rebalance_threshold == 1.2
+    assert scene.output.checkpoint_every is None and scene.output.checkpoint_keep == 2
+    assert scene.materials == (MaterialSpec("rubber", "neo_hookean", 1000.0,
+                                            {"E": 1000.0, "nu": 0.3}),)
+    assert scene.bodies[0] == BodySpec("lower_left", "rubber", "sphere",
+                                       {"center": (0.25, 0.25), "radius": 0.2}, (0.1, 0.1),
+                                       0.0, 0.0, 0, None)
+    assert scene.walls.faces == (WallFace("slip", 0.0),) * 4
+    with pytest.raises(AttributeError):
+        scene.dx = 1.0  # frozen
+    snow = parse_scene(GOOD_3D, "s.toml")
+    assert snow.colliders[0] == ColliderSpec("ball", "sphere", {"center": (0.5, 0.5, 0.45),
+                                                                "radius": 0.12},
+                                             "separate", 0.2, (0.0, 0.0, -1.2),
+                                             (0.0, 0.0, 0.0), 0.0, math.inf)
+    assert snow.walls.faces[4] == WallFace("sticky", 0.0)
+    assert snow.walls.faces[5] == WallFace("slip", 0.0)
+    sponge = load_scene("inputs/sponge_twist_3d.toml")
+    assert sponge.prescribed[1] == PrescribedSpec(
+        "right_clamp", {"lower": (0.75, 0.4, 0.4), "upper": (0.8, 0.6, 0.6)}, (0.0, 0.0, 0.0),
+        (3.14159, 0.0, 0.0), (0.775, 0.5, 0.5))
+
+
+def test_wall_defaults_and_per_face_overrides():
+    scene = parse_scene(GOOD.replace('default = "slip"', 'default = "separate"\nfriction = 0.2\n'
+                                     'x_upper = { condition = "sticky" }\n'
+                                     'y_lower = { friction = 0.5 }'), "s.toml")
+    assert scene.walls.faces == (WallFace("separate", 0.2), WallFace("sticky", 0.2),
+                                 WallFace("separate", 0.5), WallFace("separate", 0.2))
+
+
+@pytest.mark.parametrize("scene_file", sorted(Path("inputs").glob("*.toml")), ids=str)
+def test_inputs_validate_and_round_trip(scene_file):
+    scene = load_scene(scene_file)
+    assert scene.path == str(scene_file)
+    again = parse_scene(scene.text)
+    assert again == scene and again.text == scene.text
+    assert scene.text.startswith("[simulation]") or "[simulation]" in scene.text
+
+
+def test_round_trip_keeps_mesh_paths_absolute(tmp_path):
+    import meshio
+    import numpy as np
+
+    pts = np.array([[0.2, 0.2, 0.0], [0.6, 0.2, 0.0], [0.2, 0.6, 0.0]])
+    meshio.write(str(tmp_path / "t.vtk"), meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2]]))]))
+    scene_file = tmp_path / "s.toml"
+    scene_file.write_text(GOOD.replace(SPHERE_0, 'shape = "mesh"\nfile = "t.vtk"'))
+    scene = load_scene(scene_file)
+    assert scene.bodies[0].params["bounds"] == ((0.2, 0.2), (0.6, 0.6))
+    assert parse_scene(scene.text, "elsewhere/checkpoint.h5") == scene
