@@ -240,3 +240,13 @@ def test_round_trip_keeps_mesh_paths_absolute(tmp_path):
     scene = load_scene(scene_file)
     assert scene.bodies[0].params["bounds"] == ((0.2, 0.2), (0.6, 0.6))
     assert parse_scene(scene.text, "elsewhere/checkpoint.h5") == scene
+
+
+def test_the_documented_example_is_a_valid_scene():
+    import re
+
+    doc = Path("docs/scene-format.md").read_text()
+    example = re.search(r"```toml\n(.*?)```", doc, re.S).group(1)
+    scene = parse_scene(example, "docs/scene-format.md")
+    assert len(scene.bodies) == 2 and scene.colliders[0].end == 1.0
+    assert scene.walls.faces[0] == WallFace("separate", 0.3)
