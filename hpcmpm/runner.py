@@ -116,6 +116,8 @@ class Runner:
                             "the run may become unstable", fixed, stable, sim.step_index)
                 self.dt_warned = True
             stable = fixed
+        if sim.scene.max_dt is not None:
+            stable = min(stable, sim.scene.max_dt)
         return stable
 
     # -- loop ------------------------------------------------------------------------------
