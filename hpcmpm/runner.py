@@ -207,6 +207,7 @@ class Runner:
             "n_ranks": domain.size, "hpcmpm_version": __version__,
             "restart_chain": list(self.options.restart_chain),
             "rank_counts": np.asarray(domain.allgather(sim.particles.n), dtype=np.int64),
+            "needs_sort": np.asarray(domain.allgather(sim.needs_sort), dtype=np.int8),
         }
         self._latest_ckpt = write_checkpoint(self.options.out_dir, domain, sim.particles, meta,
                                              keep=self.options.checkpoint_keep)
@@ -361,7 +362,9 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     same_count = int(meta["n_ranks"]) == domain.size
     if same_count:
         domain.set_boxes(np.asarray(meta["boxes"]))
-        domain.migrate(sim.particles)
+        domain.migrate(sim.particles)  # moves nothing: every rank got back its own rows
+        pending = meta.get("needs_sort")
+        sim.restore_order_state(True if pending is None else bool(pending[domain.rank]))
     else:
         domain.decompose(sim.particles)
     sim.time = float(meta["time"])
