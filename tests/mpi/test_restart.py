@@ -90,3 +90,14 @@ def test_sigterm_writes_a_checkpoint_that_restarts(tmp_path, ranks):
     _, attrs = final_frame(tmp_path)
     assert attrs["time"] == pytest.approx(t_ckpt + 0.1)
     assert attrs["step"] > step_ckpt
+
+
+def test_wall_clock_checkpoints_are_written_during_the_run(tmp_path):
+    # Every 0.3 s of wall time over a run of a few seconds: at least one checkpoint before the
+    # final one, and only the newest two are kept.
+    hpcmpm(1, "run", "inputs/disks_2d.toml", "--out", str(tmp_path), "--quiet",
+           "--checkpoint-wall", "0.3", "--set", "output.checkpoint_keep=2")
+    ckpts = sorted(tmp_path.glob("ckpt_*.h5"))
+    assert len(ckpts) == 2
+    with h5py.File(ckpts[0]) as f:
+        assert 0 < float(f.attrs["time"]) < 3.0
