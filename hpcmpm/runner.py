@@ -350,9 +350,7 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     from .scene import parse_scene
     from .state import ParticleSet
 
-    probe = Domain.__new__(Domain)  # a Communicator-only view for reading
-    Communicator.__init__(probe, comm.comm)
-    fields, meta = read_checkpoint(ckpt, probe)
+    fields, meta = read_checkpoint(ckpt, comm)  # reading needs the collective verbs only
     scene = parse_scene(meta["scene_text"], path=meta.get("scene_path", "<checkpoint>"))
     domain = make_domain(scene, comm)
     sim = Simulation(scene, domain)
