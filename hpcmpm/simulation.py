@@ -140,9 +140,7 @@ class Simulation:
         else:
             order = np.argsort(keys, kind="stable")
         p.permute(order)
-        bounds = np.searchsorted(p["group"], np.arange(len(self.materials) + 1))
-        self.group_slices = [(int(bounds[g]), int(bounds[g + 1]))
-                             for g in range(len(self.materials))]
+        self.find_group_slices()
         self._needs_sort = False
 
     @property
@@ -157,10 +155,13 @@ class Simulation:
         the group column alone."""
         self._needs_sort = bool(needs_sort)
         if not self._needs_sort:
-            bounds = np.searchsorted(self.particles["group"],
-                                     np.arange(len(self.materials) + 1))
-            self.group_slices = [(int(bounds[g]), int(bounds[g + 1]))
-                                 for g in range(len(self.materials))]
+            self.find_group_slices()
+
+    def find_group_slices(self) -> None:
+        """Each material's contiguous slice of the (group-sorted) particles."""
+        bounds = np.searchsorted(self.particles["group"], np.arange(len(self.materials) + 1))
+        self.group_slices = [(int(bounds[g]), int(bounds[g + 1]))
+                             for g in range(len(self.materials))]
 
     def material_fields(self, g: int) -> dict[str, np.ndarray]:
         start, stop = self.group_slices[g]
