@@ -17,7 +17,7 @@ from .kernels.grid import update_velocity
 from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
 from .kernels.shape import ORDERS, inverse_inertia_factor
-from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCHEMES
+from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCHEMES, static
 from .materials import make_material
 from .state import SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock, ParticleSet
 
@@ -45,6 +45,7 @@ class Simulation:
         self.order = ORDERS[scene.kernel]
         self.scheme = SCHEMES[scene.transfer]
         self.dinv_factor = inverse_inertia_factor(self.order)
+        self._static_scheme, self._static_order = static(self.scheme), static(self.order)
         self.flip_alpha = float(getattr(scene, "flip_alpha", 0.0))
         # FLIP needs the pre-force grid velocity; every other scheme fuses the impulse into
         # the momentum and saves a grid field.
@@ -179,8 +180,9 @@ class Simulation:
         impulse = grid["impulse"] if self.split_force else grid["momentum"]
         SCATTER[self.dim](
             p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p["mass"], p["vol0"],
-            p["tau"], self.scheme, self.order, self.dinv_factor, self.dx, self.domain_lo,
-            grid.origin, dt, self.split_force, grid["mass"], grid["momentum"], impulse)
+            p["tau"], self._static_scheme, self._static_order, self.dinv_factor, self.dx,
+            self.domain_lo, grid.origin, dt, self.split_force, grid["mass"], grid["momentum"],
+            impulse)
         for clamp in self.prescribed:
             clamp.scatter(p, grid, self.order)
 
@@ -204,8 +206,8 @@ class Simulation:
         p, grid = self.particles, self.grid
         old = grid["velocity_old"] if self.scheme == FLIP else self._dummy_vector
         GATHER[self.dim](
-            p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p["F"], self.scheme,
-            self.order, self.dinv_factor, self.dx, self.domain_lo, grid.origin, dt,
+            p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p["F"], self._static_scheme,
+            self._static_order, self.dinv_factor, self.dx, self.domain_lo, grid.origin, dt,
             self.flip_alpha, grid["velocity"], old)
 
     # -- time step and health --------------------------------------------------------------

@@ -40,34 +40,27 @@ def stencil_base(xi: float, order: int) -> int:
 
 
 @njit(cache=True, inline="always")
-def weights_1d(xi: float, base: int, order: int, inv_dx: float, w, dw, axis: int) -> None:
-    """Fill ``w[axis, k]`` and ``dw[axis, k]`` (k = 0..order) for the nodes ``base + k``.
+def weights(xi: float, base: int, order: int, inv_dx: float):
+    """``(w, dw)``: two 4-tuples of the weights and gradients at nodes ``base .. base + 3``
+    (the fourth entries are zero for the quadratic spline), with ``r = xi - node``.
 
-    ``w`` and ``dw`` are scratch arrays of shape (dim, 4) owned by the caller, so the
-    per-particle loop allocates nothing."""
-    if order == QUADRATIC:
-        fx = xi - base  # in [0.5, 1.5)
-        w[axis, 0] = 0.5 * (1.5 - fx) ** 2
-        w[axis, 1] = 0.75 - (fx - 1.0) ** 2
-        w[axis, 2] = 0.5 * (fx - 0.5) ** 2
-        dw[axis, 0] = (fx - 1.5) * inv_dx
-        dw[axis, 1] = -2.0 * (fx - 1.0) * inv_dx
-        dw[axis, 2] = (fx - 0.5) * inv_dx
-    else:
-        for k in range(4):
-            r = xi - (base + k)
-            a = abs(r)
-            s = 1.0 if r >= 0.0 else -1.0
-            if a < 1.0:
-                w[axis, k] = 0.5 * a * a * a - a * a + 2.0 / 3.0
-                dw[axis, k] = (1.5 * a * a - 2.0 * a) * s * inv_dx
-            elif a < 2.0:
-                t = 2.0 - a
-                w[axis, k] = t * t * t / 6.0
-                dw[axis, k] = -0.5 * t * t * s * inv_dx
-            else:
-                w[axis, k] = 0.0
-                dw[axis, k] = 0.0
+    Tuples, not a scratch array: with ``order`` a compile-time constant (see
+    `hpcmpm.kernels.transfer.static`) the stencil loops unroll and the weights stay in
+    registers, where a scratch array would be reloaded after every grid store (the compiler
+    cannot prove the two do not alias). For the cubic spline ``xi - base`` is in [1, 2), so
+    the branch of each node and the sign of its ``r`` are known."""
+    fx = xi - base
+    if order == QUADRATIC:  # fx in [0.5, 1.5)
+        return ((0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2, 0.0),
+                ((fx - 1.5) * inv_dx, -2.0 * (fx - 1.0) * inv_dx, (fx - 0.5) * inv_dx, 0.0))
+    a1 = fx - 1.0  # |r| at node base + 1 (r >= 0)
+    a2 = 2.0 - fx  # |r| at node base + 2 (r <= 0)
+    t0 = 2.0 - fx  # 2 - |r| at node base (r in [1, 2))
+    t3 = fx - 1.0  # 2 - |r| at node base + 3 (r in [-2, -1))
+    return ((t0 * t0 * t0 / 6.0, 0.5 * a1 * a1 * a1 - a1 * a1 + 2.0 / 3.0,
+             0.5 * a2 * a2 * a2 - a2 * a2 + 2.0 / 3.0, t3 * t3 * t3 / 6.0),
+            (-0.5 * t0 * t0 * inv_dx, (1.5 * a1 * a1 - 2.0 * a1) * inv_dx,
+             -(1.5 * a2 * a2 - 2.0 * a2) * inv_dx, 0.5 * t3 * t3 * inv_dx))
 
 
 @njit(cache=True)
@@ -75,20 +68,18 @@ def evaluate(xi: np.ndarray, order: int, inv_dx: float):
     """Weights and gradients of every particle at grid coordinates ``xi`` (n, dim).
 
     Returns ``base`` (n, dim) int64, ``w`` and ``dw`` (n, dim, order + 1). For tests and
-    diagnostics; the transfer kernels inline `weights_1d` instead."""
+    diagnostics; the transfer kernels inline `weights` instead."""
     n, dim = xi.shape
     s = order + 1
     base = np.empty((n, dim), dtype=np.int64)
     w = np.empty((n, dim, s))
     dw = np.empty((n, dim, s))
-    sw = np.empty((dim, 4))
-    sdw = np.empty((dim, 4))
     for p in range(n):
         for a in range(dim):
             b = stencil_base(xi[p, a], order)
             base[p, a] = b
-            weights_1d(xi[p, a], b, order, inv_dx, sw, sdw, a)
+            wa, dwa = weights(xi[p, a], b, order, inv_dx)
             for k in range(s):
-                w[p, a, k] = sw[a, k]
-                dw[p, a, k] = sdw[a, k]
+                w[p, a, k] = wa[k]
+                dw[p, a, k] = dwa[k]
     return base, w, dw

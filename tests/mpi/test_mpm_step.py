@@ -8,7 +8,7 @@ from mpi4py import MPI
 
 from hpcmpm.kernels.grid import update_velocity
 from hpcmpm.kernels.shape import CUBIC, QUADRATIC, inverse_inertia_factor
-from hpcmpm.kernels.transfer import APIC, GATHER, MLS, SCATTER
+from hpcmpm.kernels.transfer import APIC, GATHER, MLS, SCATTER, static
 from hpcmpm.parallel import Domain
 from hpcmpm.state import SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock, ParticleSet
 
@@ -57,8 +57,8 @@ def run(domain, dim, values, scheme, order, steps, dt):
     for step in range(steps):
         p["tau"][...] = kirchhoff_neo_hookean(p["F"])
         grid.fit(*domain.grid_box(p, order))
-        SCATTER[dim](p["x"], p["v"], p["C"], p["mass"], p["vol0"], p["tau"], scheme, order,
-                     dinv_factor, domain.dx, domain.domain_lo, grid.origin, dt, False,
+        SCATTER[dim](p["x"], p["v"], p["C"], p["mass"], p["vol0"], p["tau"], static(scheme),
+                     static(order), dinv_factor, domain.dx, domain.domain_lo, grid.origin, dt, False,
                      grid["mass"], grid["momentum"], grid["momentum"])
         domain.sum_ghosts_to_owners(grid, "mass", "momentum")
         velocity = grid["velocity"]
@@ -66,8 +66,8 @@ def run(domain, dim, values, scheme, order, steps, dt):
                         grid["momentum"].reshape(-1, dim), False, np.zeros(dim), dt,
                         velocity.reshape(-1, dim), velocity.reshape(-1, dim), False)
         domain.fill_ghosts(grid, "velocity")
-        GATHER[dim](p["x"], p["v"], p["C"], p["F"], scheme, order, dinv_factor, domain.dx,
-                    domain.domain_lo, grid.origin, dt, 0.0, velocity, velocity)
+        GATHER[dim](p["x"], p["v"], p["C"], p["F"], static(scheme), static(order), dinv_factor,
+                    domain.dx, domain.domain_lo, grid.origin, dt, 0.0, velocity, velocity)
         sent += domain.migrate(p)
         if step == steps // 2:  # moving the cuts only moves particles
             domain.rebalance(p, threshold=1.0)

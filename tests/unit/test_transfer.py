@@ -5,7 +5,7 @@ import pytest
 
 from hpcmpm.kernels.particles import momentum_and_kinetic_energy
 from hpcmpm.kernels.shape import CUBIC, QUADRATIC, inverse_inertia_factor
-from hpcmpm.kernels.transfer import APIC, FLIP, GATHER, MLS, PIC, SCATTER
+from hpcmpm.kernels.transfer import APIC, FLIP, GATHER, MLS, PIC, SCATTER, static
 
 DX = 0.1
 
@@ -33,13 +33,14 @@ def transfer_cycle(x, v, C, F, mass, scheme, order, dim):
     vol = np.full(len(x), 1e-3)
     lo = np.zeros(dim)
     dinv = inverse_inertia_factor(order)
-    SCATTER[dim](x, v, C, mass, vol, tau, scheme, order, dinv, DX, lo, origin, 0.0, False,
-                 grid_mass, grid_mom, grid_mom)
+    SCATTER[dim](x, v, C, mass, vol, tau, static(scheme), static(order), dinv, DX, lo, origin,
+                 0.0, False, grid_mass, grid_mom, grid_mom)
     vel = np.zeros_like(grid_mom)
     has = grid_mass > 0
     vel[has] = grid_mom[has] / grid_mass[has][:, None]
     # dt = 0: positions and F stay put, so repeated cycles measure the transfer alone.
-    GATHER[dim](x, v, C, F, scheme, order, dinv, DX, lo, origin, 0.0, 1.0, vel, vel)
+    GATHER[dim](x, v, C, F, static(scheme), static(order), dinv, DX, lo, origin, 0.0, 1.0,
+                vel, vel)
     return grid_mass, grid_mom
 
 
