@@ -188,7 +188,9 @@ class Runner:
         sim = self.sim
         diag = sim.diagnostics()
         attrs = {k: v for k, v in diag.items()}
-        self.writer.write(sim.particles, sim.time, sim.step_index, extra_attrs=attrs)
+        derived = {"tau": sim.kirchhoff_stress()} if "tau" in self.writer.fields else None
+        self.writer.write(sim.particles, sim.time, sim.step_index, extra_attrs=attrs,
+                          derived=derived)
         self.frame_index += 1
 
     @property
@@ -262,7 +264,7 @@ def initial_particles(sim: Simulation) -> None:
     # Every rank samples (deterministic) and keeps a strided share, so no rank ever holds
     # the whole scene; the decomposition then moves particles to their owners.
     mine = np.flatnonzero(values["id"] % domain.size == domain.rank)
-    p.append({k: np.asarray(v)[mine] for k, v in values.items() if k in p})
+    p.append_rows({k: v for k, v in values.items() if k in p}, mine)
     if sim.scene.prescribed:
         from .boundaries import mark_prescribed_particles
 

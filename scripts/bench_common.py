@@ -177,10 +177,10 @@ def build_hpcmpm(s: BenchScene, comm=None):
     sim = Simulation(scene, domain)
     ids = np.arange(s.n, dtype=np.int64)
     mine = np.flatnonzero(ids % domain.size == domain.rank)
-    sim.particles.append({
-        "id": ids[mine], "group": np.zeros(len(mine), dtype=np.int32),
-        "x": s.x0[mine], "v": s.v0[mine],
-        "mass": np.full(len(mine), s.p_mass), "vol0": np.full(len(mine), s.p_vol)})
+    sim.particles.append_rows({
+        "id": ids, "group": np.zeros(s.n, dtype=np.int32), "x": s.x0, "v": s.v0,
+        "mass": np.full(s.n, s.p_mass), "vol0": np.full(s.n, s.p_vol)}, mine)
+    del ids, mine  # the harness's own arrays are not part of the run's memory
     domain.decompose(sim.particles)
     return sim
 

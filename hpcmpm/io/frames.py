@@ -65,10 +65,15 @@ class FrameWriter:
         self.catalog = FrameCatalog(self.out_dir) if domain.rank == 0 else None
 
     def write(self, particles, time: float, step: int,
-              extra_attrs: dict[str, Any] | None = None) -> Path:
-        """Write the next frame (collective: every rank calls it) and return its path."""
+              extra_attrs: dict[str, Any] | None = None,
+              derived: dict[str, np.ndarray] | None = None) -> Path:
+        """Write the next frame (collective: every rank calls it) and return its path.
+
+        ``derived`` holds per-particle arrays that are not particle fields (rows in the
+        particles' order), e.g. the Kirchhoff stress ``tau``; they are written when asked for
+        in ``fields``."""
         path = self.out_dir / frame_name(self.frame_index)
-        rows = self._rows_sorted_by_id(particles)
+        rows = self._rows_sorted_by_id(particles, derived or {})
         ids = rows.pop("id")
         n_total = self.domain.sum(len(ids))
         attrs = {
@@ -103,7 +108,7 @@ class FrameWriter:
         self.frame_index += 1
         return path
 
-    def _rows_sorted_by_id(self, particles) -> dict[str, np.ndarray]:
+    def _rows_sorted_by_id(self, particles, derived) -> dict[str, np.ndarray]:
         order = np.argsort(particles["id"], kind="stable")
         rows = {}
         for name, field in CORE_DATASETS.items():
@@ -112,6 +117,8 @@ class FrameWriter:
         for name in self.fields:
             if name in particles:
                 rows[name] = particles[name][order]
+            elif name in derived:
+                rows[name] = derived[name][order]
         return rows
 
     def _fill(self, out: SharedFile, dsets, ids, rows, n_total) -> None:

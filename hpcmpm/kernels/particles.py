@@ -128,3 +128,51 @@ def momentum_and_kinetic_energy(x, v, mass, C, with_affine, inertia):
             out[5] += m * inertia * (C[p, 1, 0] - C[p, 0, 1])
         out[6] += 0.5 * m * (v0 * v0 + v1 * v1 + v2 * v2)
     return out
+
+
+@njit(cache=True)
+def complete_permutation(order, n, perm, chosen):
+    """``perm`` (n,) = ``order`` (m distinct indices into 0..n-1) followed by the indices it
+    leaves out, in increasing order, so a subset selection becomes a permutation that
+    `permute_rows` can apply in place. ``chosen`` is (n,) bool scratch."""
+    m = order.shape[0]
+    for i in range(n):
+        chosen[i] = False
+    for j in range(m):
+        perm[j] = order[j]
+        chosen[order[j]] = True
+    k = m
+    for i in range(n):
+        if not chosen[i]:
+            perm[k] = i
+            k += 1
+
+
+@njit(cache=True)
+def permute_rows(data, perm, done, row):
+    """``data[j] <- data[perm[j]]`` for every row j, in place, following the permutation's
+    cycles: one row of scratch (``row``, (w,)) instead of a second copy of the array.
+
+    data (n, w); perm (n,) a permutation of 0..n-1; done (n,) bool scratch."""
+    n, w = data.shape
+    for i in range(n):
+        done[i] = False
+    for i in range(n):
+        if done[i]:
+            continue
+        done[i] = True
+        if perm[i] == i:
+            continue
+        for c in range(w):
+            row[c] = data[i, c]
+        j = i
+        while True:
+            k = perm[j]
+            done[j] = True
+            if k == i:
+                for c in range(w):
+                    data[j, c] = row[c]
+                break
+            for c in range(w):
+                data[j, c] = data[k, c]
+            j = k

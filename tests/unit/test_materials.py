@@ -12,7 +12,7 @@ import pytest
 from hpcmpm.errors import SceneError
 from hpcmpm.materials import MATERIALS, lame, make_material, validate_params
 from hpcmpm.materials.decompositions import polar, svd
-from hpcmpm.state import ParticleSet
+from hpcmpm.state import TENSOR, FieldSpec, ParticleSet
 
 DIMS = (2, 3)
 E, NU, RHO = 10.0, 0.3, 2.0
@@ -341,6 +341,7 @@ def test_update_on_particle_set_slices():
     """The simulation hands each material contiguous row slices of the ParticleSet."""
     mats = [snow(3), material("neo_hookean", 3)]
     specs = {k: v for m in mats for k, v in m.fields.items()}
+    specs["tau"] = FieldSpec(TENSOR)  # the simulation passes a buffer; a field works the same
     p = ParticleSet(3, specs)
     rng = np.random.default_rng(11)
     F = np.stack([random_F(rng, 3, 0.9, 1.1) for _ in range(10)])

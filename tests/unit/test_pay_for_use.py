@@ -19,7 +19,7 @@ def test_elastic_scene_has_no_plastic_fields_and_never_runs_the_snow_kernel(monk
     names = set(sim.particles.field_names())
     assert not names & {"Fp", "Jp", "prescribed"}
     # MLS needs C; nothing else beyond the core fields.
-    assert names == {"id", "group", "x", "v", "mass", "vol0", "F", "tau", "C"}
+    assert names == {"id", "group", "x", "v", "mass", "vol0", "F", "C"}
     assert "impulse" not in sim.grid.fields and "velocity_old" not in sim.grid.fields
 
 
