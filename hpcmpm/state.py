@@ -8,6 +8,7 @@ block of grid nodes (owned nodes plus ghost layers) that covers this rank's part
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -232,26 +233,28 @@ class GridBlock:
     def fit(self, lo: np.ndarray, hi: np.ndarray) -> None:
         """Make the block hold nodes ``lo <= i < hi`` and zero every field.
 
-        Reallocates (with ``margin`` spare nodes per side) only when the box does not fit."""
-        lo = np.asarray(lo, dtype=np.int64)
-        hi = np.maximum(np.asarray(hi, dtype=np.int64), lo)
-        end = self.origin + np.asarray(self.shape, dtype=np.int64)
-        if np.any(lo < self.origin) or np.any(hi > end) or self._too_big(lo, hi):
-            self.origin = lo - self.margin
-            self.shape = tuple(int(s) for s in (hi - lo + 2 * self.margin))
+        Reallocates (with ``margin`` spare nodes per side) only when the box does not fit, or
+        when the allocation is more than 4x the need, so a block that once covered a
+        spread-out body does not keep zeroing empty space forever. (Plain ints: this runs
+        every step, and NumPy calls on 3-element arrays cost more than the zeroing of a
+        small 2D block.)"""
+        lo = [int(a) for a in lo]
+        hi = [max(int(b), a) for a, b in zip(lo, hi)]
+        origin = [int(a) for a in self.origin]
+        end = [a + s for a, s in zip(origin, self.shape)]
+        need = math.prod(b - a + 2 * self.margin for a, b in zip(lo, hi))
+        if (any(a < o for a, o in zip(lo, origin)) or any(b > e for b, e in zip(hi, end))
+                or math.prod(self.shape) > 4 * max(need, 1)):
+            self.origin = np.array(lo, dtype=np.int64) - self.margin
+            self.shape = tuple(b - a + 2 * self.margin for a, b in zip(lo, hi))
             for name, kind in self.kinds.items():
                 self.fields[name] = self._alloc(kind)
             self.reallocations += 1
         else:
             for arr in self.fields.values():
                 arr.fill(0.0)
-        self.lo, self.hi = lo, hi
-
-    def _too_big(self, lo: np.ndarray, hi: np.ndarray) -> bool:
-        # Shrink when the allocation is more than 4x the need, so a block that once covered a
-        # spread-out body does not keep zeroing empty space forever.
-        need = np.prod((hi - lo + 2 * self.margin).astype(float))
-        return np.prod(np.asarray(self.shape, dtype=float)) > 4.0 * max(need, 1.0)
+        self.lo = np.array(lo, dtype=np.int64)
+        self.hi = np.array(hi, dtype=np.int64)
 
     def node_positions(self) -> list[np.ndarray]:
         """1D coordinate arrays per axis for the allocated nodes."""

@@ -53,6 +53,8 @@ class Walls:
         self.n_cells = np.asarray(n_cells, dtype=np.int64)
         if len(self.faces) != 2 * len(self.n_cells):
             raise ValueError(f"walls need {2 * len(self.n_cells)} faces, got {len(self.faces)}")
+        self._key: tuple | None = None
+        self._boxes: list[tuple] = []
 
     def apply(self, velocity: np.ndarray, origin, dx: float, domain_lo, t: float, dt: float,
               mass: np.ndarray | None = None) -> None:
@@ -61,12 +63,20 @@ class Walls:
         dim = velocity.shape[-1]
         v3 = block3(velocity, dim)
         m3, use_mass = mass3(mass, dim)
-        shape = np.array(v3.shape[:3], dtype=np.int64)
-        origin = np.asarray(origin, dtype=np.int64)
+        key = (tuple(int(o) for o in origin), v3.shape[:3])
+        if key != self._key:  # the block moved or grew: recompute which faces it touches
+            self._key, self._boxes = key, self._face_boxes(*key)
+        for lo, hi, axis, sign, condition, friction in self._boxes:
+            project_face(v3, m3, use_mass, lo, hi, axis, sign, condition, friction)
+
+    def _face_boxes(self, origin, shape) -> list[tuple]:
+        """Per face the block reaches: (lo, hi) block-index box of the nodes on or beyond
+        it, the axis, the outward normal sign, the condition and the friction."""
+        boxes = []
         for face, (condition, friction) in enumerate(self.faces):
             axis, upper = divmod(face, 2)
             lo = np.zeros(3, dtype=np.int64)
-            hi = shape.copy()
+            hi = np.array(shape, dtype=np.int64)
             if upper:  # block index of global node n_cells, and everything above it
                 lo[axis] = max(self.n_cells[axis] - origin[axis], 0)
                 sign = -1.0
@@ -74,4 +84,5 @@ class Walls:
                 hi[axis] = min(1 - origin[axis], shape[axis])
                 sign = 1.0
             if hi[axis] > lo[axis]:
-                project_face(v3, m3, use_mass, lo, hi, axis, sign, condition, friction)
+                boxes.append((lo, hi, axis, sign, condition, friction))
+        return boxes

