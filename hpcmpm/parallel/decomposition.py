@@ -55,25 +55,29 @@ def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
     """
     n, dim = x.shape
     n_boxes = boxes.shape[0]
-    cell = np.empty(dim, np.int64)
+    # floor(xi) >= lo  <=>  xi >= lo, and floor(xi) < hi  <=>  xi < hi, for integer lo, hi:
+    # comparing xi with the box as floats gives the cell test without a floor per particle.
+    flo = boxes[:, 0, :].astype(np.float64)
+    fhi = boxes[:, 1, :].astype(np.float64)
     for p in range(n):
+        out[p] = me
+        inside = True
         finite = True
         for a in range(dim):
             xi = (x[p, a] - domain_lo[a]) * inv_dx
             if not (xi > -BIG and xi < BIG):  # false for NaN too
                 finite = False
-                break
-            cell[a] = int(math.floor(xi))
-        out[p] = me
-        if not finite:
+            if xi < flo[me, a] or xi >= fhi[me, a]:
+                inside = False
+        if inside or not finite:
             continue
-        for k in range(n_boxes + 1):
-            b = me if k == 0 else k - 1
-            if k > 0 and b == me:
+        for b in range(n_boxes):
+            if b == me:
                 continue
             inside = True
             for a in range(dim):
-                if cell[a] < boxes[b, 0, a] or cell[a] >= boxes[b, 1, a]:
+                xi = (x[p, a] - domain_lo[a]) * inv_dx
+                if xi < flo[b, a] or xi >= fhi[b, a]:
                     inside = False
                     break
             if inside:
