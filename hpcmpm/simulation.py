@@ -53,6 +53,7 @@ class Simulation:
         # FLIP needs the pre-force grid velocity; every other scheme fuses the impulse into
         # the momentum and saves a grid field.
         self.split_force = self.scheme == FLIP
+        self._static_split = static(self.split_force)
         self.gravity = np.zeros(3)
         self.gravity[: self.dim] = scene.gravity
         self.materials = [make_material(spec, self.dim) for spec in scene.materials]
@@ -201,7 +202,7 @@ class Simulation:
                         self._dummy_C if C is None else C[start:stop], mass[start:stop],
                         vol0[start:stop], tau, self._static_scheme, self._static_order,
                         self.dinv_factor, self.dx, self.domain_lo, grid.origin, dt,
-                        self.split_force, grid["mass"], grid["momentum"], impulse)
+                        self._static_split, grid["mass"], grid["momentum"], impulse)
         with t("p2g"):
             for clamp in self.prescribed:
                 clamp.scatter(p, grid, self.order)

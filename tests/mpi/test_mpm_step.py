@@ -58,8 +58,8 @@ def run(domain, dim, values, scheme, order, steps, dt):
         p["tau"][...] = kirchhoff_neo_hookean(p["F"])
         grid.fit(*domain.grid_box(p, order))
         SCATTER[dim](p["x"], p["v"], p["C"], p["mass"], p["vol0"], p["tau"], static(scheme),
-                     static(order), dinv_factor, domain.dx, domain.domain_lo, grid.origin, dt, False,
-                     grid["mass"], grid["momentum"], grid["momentum"])
+                     static(order), dinv_factor, domain.dx, domain.domain_lo, grid.origin, dt,
+                     static(False), grid["mass"], grid["momentum"], grid["momentum"])
         domain.sum_ghosts_to_owners(grid, "mass", "momentum")
         velocity = grid["velocity"]
         update_velocity(grid["mass"].reshape(-1), grid["momentum"].reshape(-1, dim),

@@ -34,7 +34,7 @@ def transfer_cycle(x, v, C, F, mass, scheme, order, dim):
     lo = np.zeros(dim)
     dinv = inverse_inertia_factor(order)
     SCATTER[dim](x, v, C, mass, vol, tau, static(scheme), static(order), dinv, DX, lo, origin,
-                 0.0, False, grid_mass, grid_mom, grid_mom)
+                 0.0, static(False), grid_mass, grid_mom, grid_mom)
     vel = np.zeros_like(grid_mom)
     has = grid_mass > 0
     vel[has] = grid_mom[has] / grid_mass[has][:, None]
