@@ -44,15 +44,19 @@ NEWTON_MAX_ITER = 20
 
 
 # -- 2D --------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def polar2(f):
     """F = R S for a 2x2 tuple f: returns (R, S) as tuples; S symmetric (SPD when det F > 0)."""
     x = f[0] + f[3]
     y = f[2] - f[1]
-    r = math.hypot(x, y)
+    # sqrt and one reciprocal, not hypot and two divisions: hypot is a libm call that took
+    # half the 2D corotated stress time; |F| near 1e154 (where x*x overflows) is far past
+    # anything the instability guard lets through.
+    r = math.sqrt(x * x + y * y)
     if r > 0.0:
-        c = x / r
-        s = y / r
+        inv_r = 1.0 / r
+        c = x * inv_r
+        s = y * inv_r
     else:  # F = [[a, b], [b, -a]]: every rotation is as good; take the identity
         c = 1.0
         s = 0.0

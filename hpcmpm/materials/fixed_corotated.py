@@ -17,7 +17,7 @@ from .decompositions import polar2, polar3
 from .tensors import det2, det3, load2, load3, mul2_bt, mul3_bt, store2, store3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def corotated_tau_2d(f, R, mu, lam):
     """tau = 2 mu (F - R) F^T + lam (J - 1) J I for 2x2 tuples f, R."""
     J = det2(f)
