@@ -158,7 +158,8 @@ def run_sim(scene, end_time, observer=None, setup=None) -> Simulation:
 MMS_A, MMS_MU, MMS_RHO = 0.05, 1.0, 1.0  # E = 2 mu with nu = 0
 
 
-def mms_scene(cells: int, transfer: str, kernel: str, end_time: float, cfl: float = 0.2):
+def mms_scene(cells: int, transfer: str, kernel: str, end_time: float, cfl: float = 0.2,
+              ppc: int = 2):
     dx = 1.0 / cells
     height = 4 * dx
     text = f"""
@@ -166,7 +167,7 @@ def mms_scene(cells: int, transfer: str, kernel: str, end_time: float, cfl: floa
 dim = 2
 domain = {{ lower = [0.0, 0.0], upper = [1.0, {height!r}] }}
 dx = {dx!r}
-particles_per_cell = 2
+particles_per_cell = {ppc}
 kernel = "{kernel}"
 transfer = "{transfer}"
 cfl = {cfl!r}
@@ -207,8 +208,9 @@ def mms_body_force(X, t):
     return -MMS_A * np.pi**2 * s * st - dP / MMS_RHO
 
 
-def run_mms(cells: int, transfer: str, kernel: str, end_time: float = 1.0) -> float:
-    scene = mms_scene(cells, transfer, kernel, end_time)
+def run_mms(cells: int, transfer: str, kernel: str, end_time: float = 1.0,
+            ppc: int = 2) -> float:
+    scene = mms_scene(cells, transfer, kernel, end_time, ppc=ppc)
     X0 = {}
 
     def setup(sim):
@@ -278,6 +280,9 @@ def main(argv=None) -> int:
     ap.add_argument("--png", default=str(REPO / "docs/img/study_error.png"))
     ap.add_argument("--mms-amplitude", type=float, default=MMS_A,
                     help="A of the manufactured solution (default %(default)s)")
+    ap.add_argument("--mms-ppc", type=int, default=2,
+                    help="MMS particles per cell per axis (default %(default)s); 4 tests the "
+                         "quadrature-error explanation of the quadratic plateau")
     args = ap.parse_args(argv)
     MMS_A = args.mms_amplitude
     cells = args.cells or ([10, 20] if args.smoke else [25, 50, 100])
@@ -290,7 +295,8 @@ def main(argv=None) -> int:
     kernels = KERNELS
     problems = {"bar": (lambda n, tr, k, info: run_bar(n, tr, k, bar_end, info),
                         lambda n: BAR_L / n, bar_cells),
-                "mms": (lambda n, tr, k, info: run_mms(n, tr, k, mms_end), lambda n: 1.0 / n,
+                "mms": (lambda n, tr, k, info: run_mms(n, tr, k, mms_end, args.mms_ppc),
+                        lambda n: 1.0 / n,
                         cells)}
     problems = {name: problems[name] for name in ("bar", "mms") if name in args.problems}
 
