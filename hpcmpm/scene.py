@@ -372,7 +372,11 @@ def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_co
 
     if transfer is None or not materials_complete:
         return  # a bad material or transfer is reported already; the list would mislead
-    valid = list(CORE_FIELDS) + ["tau"]  # tau: the Kirchhoff stress, computed for output
+    valid = list(CORE_FIELDS)
+    # F, or J when every material is volumetric; tau, the Kirchhoff stress, is computed for
+    # output.
+    volumetric = all(getattr(MATERIALS[m.type], "volumetric", False) for m in materials)
+    valid += ["J" if materials and volumetric else "F", "tau"]
     for m in materials:
         valid += [f for f in MATERIALS[m.type].fields if f not in valid]
     if transfer in ("apic", "mls"):

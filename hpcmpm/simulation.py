@@ -19,12 +19,18 @@ from .kernels.particles import (cell_sort_keys, counting_sort_order,
 from .kernels.shape import ORDERS, inverse_inertia_factor
 from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCHEMES, static
 from .materials import make_material
-from .state import SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock, ParticleSet
+from .state import (DEFORMATION_FIELDS, SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock,
+                    ParticleSet)
 
 log = logging.getLogger(__name__)
 
 # How many broken particles an instability report names.
 MAX_REPORTED = 8
+
+
+def deformation_field(materials) -> str:
+    """``"J"`` when every material is volumetric (its stress needs det F only), else ``"F"``."""
+    return "J" if materials and all(m.volumetric for m in materials) else "F"
 
 
 class Simulation:
@@ -33,8 +39,11 @@ class Simulation:
     # Re-sort by cell at least this often even when no particle changed rank or group, so
     # P2G/G2P keep walking the grid in memory order as particles drift (a particle crosses a
     # cell in several steps at CFL < 1, so the order decays slowly). Sorting every step cost
-    # 20 % of a 1-rank step of jelly_cube_3d.
-    sort_every = 8
+    # 20 % of a 1-rank step of jelly_cube_3d; on the 2D benchmark scene (8192 particles) the
+    # in-place sort costs 0.25 ms, and over 400 steps sorting every 8, 16, 32 steps or never
+    # measured 0.426, 0.417, 0.413, 0.400 ms/step: the order decays slowly enough that 16
+    # keeps the sort near 3 % of the step.
+    sort_every = 16
     # Particles per stress chunk: the chunk's stress (4096 x 72 B = 288 KiB in 3D) stays in
     # L2 cache between the material kernel and P2G.
     stress_chunk = 4096
@@ -57,6 +66,8 @@ class Simulation:
         self.gravity = np.zeros(3)
         self.gravity[: self.dim] = scene.gravity
         self.materials = [make_material(spec, self.dim) for spec in scene.materials]
+        # F, or J alone when no material needs more (8 B a particle instead of 8 d^2).
+        self.deformation = deformation_field(self.materials)
         self.boundaries = build_boundaries(scene)
         self.prescribed = build_prescribed(scene)
         self.particles = particles if particles is not None else ParticleSet(
@@ -89,7 +100,7 @@ class Simulation:
     # -- set-up ----------------------------------------------------------------------------
     def particle_fields(self) -> dict[str, FieldSpec]:
         """Union of the fields the materials and the chosen features declare."""
-        specs: dict[str, FieldSpec] = {}
+        specs: dict[str, FieldSpec] = {self.deformation: DEFORMATION_FIELDS[self.deformation]}
         for material in self.materials:
             specs.update(material.fields)
         if self.scheme >= APIC:
@@ -242,9 +253,9 @@ class Simulation:
         p, grid = self.particles, self.grid
         old = grid["velocity_old"] if self.scheme == FLIP else self._dummy_vector
         GATHER[self.dim](
-            p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p["F"], self._static_scheme,
-            self._static_order, self.dinv_factor, self.dx, self.domain_lo, grid.origin, dt,
-            self.flip_alpha, grid["velocity"], old)
+            p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p[self.deformation],
+            self._static_scheme, self._static_order, self.dinv_factor, self.dx, self.domain_lo,
+            grid.origin, dt, self.flip_alpha, grid["velocity"], old)
 
     # -- time step and health --------------------------------------------------------------
     def max_wave_speed(self) -> float:
@@ -261,7 +272,7 @@ class Simulation:
         """Global max particle speed; raises `InstabilityError` (same message on every rank)
         when a particle holds a non-finite value or det F <= 0."""
         p = self.particles
-        speed, nbad = scan_health(p["x"], p["v"], p["F"], self._bad, MAX_REPORTED)
+        speed, nbad = scan_health(p["x"], p["v"], p[self.deformation], self._bad, MAX_REPORTED)
         total_bad = self.domain.sum(int(nbad))
         if total_bad:
             self.raise_instability(int(nbad), total_bad)

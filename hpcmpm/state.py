@@ -42,7 +42,12 @@ CORE_FIELDS: dict[str, FieldSpec] = {
     "v": FieldSpec(VECTOR),
     "mass": FieldSpec(SCALAR),
     "vol0": FieldSpec(SCALAR),
+}
+# The deformation state: the gradient F, or its determinant J alone when every material of
+# the scene is volumetric (`hpcmpm.kernels.deformation`). A simulation declares one of them.
+DEFORMATION_FIELDS: dict[str, FieldSpec] = {
     "F": FieldSpec(TENSOR, "f8", "identity"),
+    "J": FieldSpec(SCALAR, "f8", 1.0),
 }
 
 

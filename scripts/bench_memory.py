@@ -14,7 +14,8 @@ Two numbers per scene:
   input arrays (the benchmark's own x0/v0, 2 d doubles per particle, included and stated).
 
 Scenes: 2D = scene a's layout with ``--n2d`` particles (default 262144, grid grown with it),
-3D = scene b (262144 particles on 64^3); elastic = fixed corotated, plastic = snow. Writes
+3D = scene b (262144 particles on 64^3); fluid = weakly compressible (2D only: it carries J
+instead of F), elastic = fixed corotated, plastic = snow. Writes
 bench_results/memory.json. The target is <= 300 B/particle for 3D elastic.
 
     python scripts/bench_memory.py
@@ -35,6 +36,7 @@ import bench_common as bc  # noqa: E402
 
 MARK = "BENCH_RESULT "
 CASES = {  # name: (scene key, material)
+    "2d_fluid": ("a", bc.FLUID),
     "2d_elastic": ("a_fc", bc.COROTATED),
     "2d_snow": ("a_fc", bc.SNOW),
     "3d_elastic": ("b", bc.COROTATED),

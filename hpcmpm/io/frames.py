@@ -18,8 +18,10 @@ from .. import __version__
 from .shared import DEFAULT_CHUNK_BYTES, SharedFile, attr_value, gather_by_id, resolve_mode
 from .xdmf import FrameCatalog
 
-# Frame dataset name -> ParticleSet field. `material` is the group (material index).
-CORE_DATASETS = {"id": "id", "x": "x", "v": "v", "F": "F", "mass": "mass", "material": "group"}
+# Frame dataset name -> ParticleSet field. `material` is the group (material index). A run
+# carries F, or J alone when all its materials are volumetric; whichever it has is written.
+CORE_DATASETS = {"id": "id", "x": "x", "v": "v", "F": "F", "J": "J", "mass": "mass",
+                 "material": "group"}
 DATASET_DTYPES = {"id": np.int64, "material": np.int32}
 
 
@@ -112,6 +114,8 @@ class FrameWriter:
         order = np.argsort(particles["id"], kind="stable")
         rows = {}
         for name, field in CORE_DATASETS.items():
+            if field not in particles:
+                continue  # F or J: the run has one of them
             arr = particles[field][order]
             rows[name] = arr.astype(DATASET_DTYPES[name]) if name in DATASET_DTYPES else arr
         for name in self.fields:

@@ -14,18 +14,33 @@ def update_velocity(mass, momentum, impulse, split_force, gravity, dt, velocity,
     ``v_i = (p_i + dt f_i) / m_i + dt g`` on nodes with mass; ``velocity_old`` gets
     ``p_i / m_i`` when ``keep_old`` (FLIP). Nodes without mass get zero velocity."""
     dim = velocity.shape[1]
+    g0, g1 = dt * gravity[0], dt * gravity[1]
+    g2 = dt * gravity[2] if dim == 3 else 0.0
     for n in range(mass.shape[0]):
         m = mass[n]
         if m > 0.0:
             inv_m = 1.0 / m
-            for a in range(dim):
-                v_old = momentum[n, a] * inv_m
-                v_new = v_old
-                if split_force:
-                    v_new += impulse[n, a] * inv_m
-                velocity[n, a] = v_new + dt * gravity[a]
-                if keep_old:
-                    velocity_old[n, a] = v_old
+            # Components written out (dim is 2 or 3): a loop over a run-time dim is not
+            # unrolled, and this kernel touches every node of the block each step.
+            u0 = momentum[n, 0] * inv_m
+            u1 = momentum[n, 1] * inv_m
+            u2 = momentum[n, 2] * inv_m if dim == 3 else 0.0
+            if keep_old:
+                velocity_old[n, 0] = u0
+                velocity_old[n, 1] = u1
+                if dim == 3:
+                    velocity_old[n, 2] = u2
+            if split_force:
+                u0 += impulse[n, 0] * inv_m
+                u1 += impulse[n, 1] * inv_m
+                if dim == 3:
+                    u2 += impulse[n, 2] * inv_m
+            velocity[n, 0] = u0 + g0
+            velocity[n, 1] = u1 + g1
+            if dim == 3:
+                velocity[n, 2] = u2 + g2
         else:
-            for a in range(dim):
-                velocity[n, a] = 0.0
+            velocity[n, 0] = 0.0
+            velocity[n, 1] = 0.0
+            if dim == 3:
+                velocity[n, 2] = 0.0

@@ -8,15 +8,7 @@ import math
 import numpy as np
 from numba import njit
 
-
-@njit(cache=True)
-def det(F, p):
-    """det F_p for a (n, d, d) array, d = 2 or 3."""
-    if F.shape[1] == 2:
-        return F[p, 0, 0] * F[p, 1, 1] - F[p, 0, 1] * F[p, 1, 0]
-    return (F[p, 0, 0] * (F[p, 1, 1] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 1])
-            - F[p, 0, 1] * (F[p, 1, 0] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 0])
-            + F[p, 0, 2] * (F[p, 1, 0] * F[p, 2, 1] - F[p, 1, 1] * F[p, 2, 0]))
+from .deformation import volume_ratio
 
 
 @njit(cache=True)
@@ -24,7 +16,8 @@ def scan_health(x, v, F, bad, max_report):
     """Largest particle speed and the indices of broken particles.
 
     A particle is broken when x, v or F holds a non-finite value or det F <= 0 (an inverted
-    or collapsed element: the stress models are undefined there). Writes up to
+    or collapsed element: the stress models are undefined there). F may be the (n,) volume
+    ratio J of a scene of volumetric materials (`hpcmpm.kernels.deformation`). Writes up to
     ``max_report`` indices into ``bad``; returns (max speed, number of broken particles)."""
     n, dim = x.shape
     vmax2 = 0.0
@@ -36,7 +29,7 @@ def scan_health(x, v, F, bad, max_report):
             s += v[p, a] * v[p, a]
             if not (math.isfinite(x[p, a]) and math.isfinite(v[p, a])):
                 ok = False
-        J = det(F, p)
+        J = volume_ratio(F, p)
         if not (math.isfinite(J) and J > 0.0):
             ok = False
         if ok:

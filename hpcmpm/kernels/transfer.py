@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .deformation import advance_2d, advance_3d
 from .shape import stencil_base, weights
 
 PIC, FLIP, APIC, MLS = 0, 1, 2, 3
@@ -208,6 +209,9 @@ def gather_2d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt,
               grid_velocity, grid_velocity_old):
     """G2P in 2D: new v (and C), F <- (I + dt grad v) F, x <- x + dt v_pic. In place.
 
+    F is (n, 2, 2), or the (n,) volume ratio J of a scene of volumetric materials
+    (`hpcmpm.kernels.deformation`).
+
     grid_velocity_old is read only for FLIP."""
     scheme, order = len(scheme), len(order)  # compile-time constants: see `static`
     inv_dx = 1.0 / dx
@@ -274,11 +278,7 @@ def gather_2d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt,
             v[p, 1] = u1
         x[p, 0] += dt * u0
         x[p, 1] += dt * u1
-        f00, f01, f10, f11 = F[p, 0, 0], F[p, 0, 1], F[p, 1, 0], F[p, 1, 1]
-        F[p, 0, 0] = f00 + dt * (g00 * f00 + g01 * f10)
-        F[p, 0, 1] = f01 + dt * (g00 * f01 + g01 * f11)
-        F[p, 1, 0] = f10 + dt * (g10 * f00 + g11 * f10)
-        F[p, 1, 1] = f11 + dt * (g10 * f01 + g11 * f11)
+        advance_2d(F, p, dt, g00, g01, g10, g11)
 
 
 @njit(cache=True)
@@ -384,11 +384,7 @@ def gather_3d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt,
         x[p, 0] += dt * u0
         x[p, 1] += dt * u1
         x[p, 2] += dt * u2
-        for c in range(3):
-            f0, f1, f2 = F[p, 0, c], F[p, 1, c], F[p, 2, c]
-            F[p, 0, c] = f0 + dt * (g00 * f0 + g01 * f1 + g02 * f2)
-            F[p, 1, c] = f1 + dt * (g10 * f0 + g11 * f1 + g12 * f2)
-            F[p, 2, c] = f2 + dt * (g20 * f0 + g21 * f1 + g22 * f2)
+        advance_3d(F, p, dt, g00, g01, g02, g10, g11, g12, g20, g21, g22)
 
 
 SCATTER = {2: scatter_2d, 3: scatter_3d}

@@ -119,6 +119,9 @@ class Material:
     parameters: ClassVar[dict[str, Param]] = {}
     fields: ClassVar[dict[str, FieldSpec]] = {}
     uses_svd: ClassVar[bool] = False
+    # True when the stress depends on J = det F alone: a scene of such materials stores J
+    # instead of F (update_stress and energy then get fields["J"], not fields["F"]).
+    volumetric: ClassVar[bool] = False
 
     def __init__(self, spec, dim: int):
         if dim not in (2, 3):

@@ -11,9 +11,11 @@ grows without bound as J -> 0. (psi = E/2 (J - 1)^2 would give tau = E (J - 1) J
 which differs from mpm88 at finite compression.) E is the bulk modulus at rest, so the sound
 speed is sqrt(E / rho).
 
-A fluid has no memory of shape: after the stress is computed, F is reset to J^(1/d) I, which
-keeps J (the only state) and keeps F well conditioned however much the flow shears it (as
-Taichi's mpm99 does for its fluid).
+A fluid has no memory of shape: J is its only state. A scene whose materials are all
+volumetric carries J alone (`volumetric = True`; see `hpcmpm.kernels.deformation`); in a scene
+that also holds solids the fluid's particles carry F like the others, and after the stress is
+computed F is reset to J^(1/d) I, which keeps J and keeps F well conditioned however much the
+flow shears it (as Taichi's mpm99 does for its fluid).
 """
 
 from __future__ import annotations
@@ -57,6 +59,25 @@ def _stress_3d(F, tau, E):
 
 
 @njit(cache=True)
+def _stress_from_J(J, tau, E):
+    """tau_p = E (J_p - 1) I from the volume ratio alone; J (n,), tau (n, d, d)."""
+    d = tau.shape[1]
+    for p in range(J.shape[0]):
+        s = E * (J[p] - 1.0)
+        for i in range(d):
+            for j in range(d):
+                tau[p, i, j] = s if i == j else 0.0
+
+
+@njit(cache=True)
+def _energy_from_J(J, vol0, E):
+    total = 0.0
+    for p in range(J.shape[0]):
+        total += vol0[p] * E * (J[p] - 1.0 - math.log(J[p]))
+    return total
+
+
+@njit(cache=True)
 def _energy_2d(F, vol0, E):
     total = 0.0
     for p in range(F.shape[0]):
@@ -81,6 +102,7 @@ class WeaklyCompressible(Material):
     parameters = {"E": Param(0.0, math.inf, doc="bulk modulus (stress units); tau = E (J - 1) I")}
     fields = {}
     uses_svd = False
+    volumetric = True
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
@@ -90,9 +112,15 @@ class WeaklyCompressible(Material):
         self._energy = _energy_2d if dim == 2 else _energy_3d
 
     def update_stress(self, fields, dt: float) -> None:
-        """Writes fields["tau"] (n, d, d) and resets fields["F"] (n, d, d) to J^(1/d) I."""
-        self._stress(fields["F"], fields["tau"], self.params["E"])
+        """Writes fields["tau"] (n, d, d) from fields["J"] (n,) when the scene carries J
+        alone, else from fields["F"] (n, d, d), which it resets to J^(1/d) I."""
+        if "F" in fields:
+            self._stress(fields["F"], fields["tau"], self.params["E"])
+        else:
+            _stress_from_J(fields["J"], fields["tau"], self.params["E"])
 
     def energy(self, fields) -> float:
         """sum_p vol0_p E (J_p - 1 - ln J_p)."""
-        return float(self._energy(fields["F"], fields["vol0"], self.params["E"]))
+        if "F" in fields:
+            return float(self._energy(fields["F"], fields["vol0"], self.params["E"]))
+        return float(_energy_from_J(fields["J"], fields["vol0"], self.params["E"]))

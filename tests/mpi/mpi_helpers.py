@@ -11,7 +11,8 @@ import numpy as np
 from hpcmpm.parallel import Domain
 from hpcmpm.state import SCALAR, TENSOR, FieldSpec, GridBlock, ParticleSet
 
-EXTRA_FIELDS = {"Fp": FieldSpec(TENSOR, "f8", "identity"), "tag": FieldSpec(SCALAR, "i4", 0),
+EXTRA_FIELDS = {"F": FieldSpec(TENSOR, "f8", "identity"),
+                "Fp": FieldSpec(TENSOR, "f8", "identity"), "tag": FieldSpec(SCALAR, "i4", 0),
                 "tau": FieldSpec(TENSOR)}
 
 

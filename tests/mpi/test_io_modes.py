@@ -53,7 +53,8 @@ def local_particles(comm, dim: int, gaps: bool = False, empty_last: bool = True)
     values = global_values(dim, gaps)
     holders = max(1, comm.size - 1) if empty_last else comm.size
     mine = (np.arange(N) % holders == comm.rank) if comm.rank < holders else np.zeros(N, bool)
-    p = ParticleSet(dim, {"Jp": FieldSpec(), "flag": FieldSpec("scalar", "?", False)})
+    p = ParticleSet(dim, {"Jp": FieldSpec(), "flag": FieldSpec("scalar", "?", False),
+                          "F": FieldSpec("tensor", "f8", "identity")})
     p.append({k: v[mine] for k, v in values.items()})
     return p
 

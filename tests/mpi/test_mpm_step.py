@@ -44,7 +44,8 @@ def two_blocks(dim, n_per_axis):
 
 
 def run(domain, dim, values, scheme, order, steps, dt):
-    p = ParticleSet(dim, {"C": FieldSpec(TENSOR), "tau": FieldSpec(TENSOR)})
+    p = ParticleSet(dim, {"C": FieldSpec(TENSOR), "tau": FieldSpec(TENSOR),
+                          "F": FieldSpec(TENSOR, "f8", "identity")})
     mine = np.flatnonzero(values["id"] % domain.size == domain.rank)
     p.append({k: v[mine] for k, v in values.items()})
     domain.decompose(p)

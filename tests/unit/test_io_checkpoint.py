@@ -13,7 +13,8 @@ from hpcmpm.io.checkpoint import (checkpoint_name, latest_checkpoint, read_check
                                   write_checkpoint)
 from hpcmpm.state import FieldSpec, ParticleSet
 
-EXTRA = {"tau": FieldSpec("tensor"), "Fp": FieldSpec("tensor", "f8", "identity"),
+EXTRA = {"F": FieldSpec("tensor", "f8", "identity"), "tau": FieldSpec("tensor"),
+         "Fp": FieldSpec("tensor", "f8", "identity"),
          "Jp": FieldSpec("scalar", "f8", 1.0), "flag": FieldSpec("scalar", "?", False),
          "label": FieldSpec("scalar", "i4", 0), "C": FieldSpec("tensor", "f4", 0.0)}
 

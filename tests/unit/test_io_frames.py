@@ -35,7 +35,7 @@ def share(values: dict, rank: int, size: int, empty_rank: int | None) -> dict:
 
 
 def particle_set(dim: int, values: dict) -> ParticleSet:
-    p = ParticleSet(dim, {"Jp": FieldSpec()})
+    p = ParticleSet(dim, {"Jp": FieldSpec(), "F": FieldSpec("tensor", "f8", "identity")})
     p.append(values)
     return p
 

@@ -342,6 +342,7 @@ def test_update_on_particle_set_slices():
     mats = [snow(3), material("neo_hookean", 3)]
     specs = {k: v for m in mats for k, v in m.fields.items()}
     specs["tau"] = FieldSpec(TENSOR)  # the simulation passes a buffer; a field works the same
+    specs["F"] = FieldSpec(TENSOR, "f8", "identity")
     p = ParticleSet(3, specs)
     rng = np.random.default_rng(11)
     F = np.stack([random_F(rng, 3, 0.9, 1.1) for _ in range(10)])
