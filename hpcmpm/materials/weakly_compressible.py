@@ -61,12 +61,21 @@ def _stress_3d(F, tau, E):
 @njit(cache=True)
 def _stress_from_J(J, tau, E):
     """tau_p = E (J_p - 1) I from the volume ratio alone; J (n,), tau (n, d, d)."""
-    d = tau.shape[1]
+    three = tau.shape[1] == 3
     for p in range(J.shape[0]):
+        # Written out: loops over a run-time d are not unrolled, and this pass is the whole
+        # constitutive cost of a fluid scene.
         s = E * (J[p] - 1.0)
-        for i in range(d):
-            for j in range(d):
-                tau[p, i, j] = s if i == j else 0.0
+        tau[p, 0, 0] = s
+        tau[p, 0, 1] = 0.0
+        tau[p, 1, 0] = 0.0
+        tau[p, 1, 1] = s
+        if three:
+            tau[p, 0, 2] = 0.0
+            tau[p, 1, 2] = 0.0
+            tau[p, 2, 0] = 0.0
+            tau[p, 2, 1] = 0.0
+            tau[p, 2, 2] = s
 
 
 @njit(cache=True)
