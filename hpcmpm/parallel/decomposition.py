@@ -48,42 +48,56 @@ def _particle_cells(x, domain_lo, inv_dx, out):
 
 @njit(cache=True)
 def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
-    """Rank whose cell box holds each particle (``me`` first: most particles stay).
-
-    x (n, d) float64; boxes (size, 2, d) int64 ``[lo, hi)``; out (n,) int64. Non-finite
-    positions keep ``me``.
-    """
-    n, dim = x.shape
-    n_boxes = boxes.shape[0]
-    # floor(xi) >= lo  <=>  xi >= lo, and floor(xi) < hi  <=>  xi < hi, for integer lo, hi:
-    # comparing xi with the box as floats gives the cell test without a floor per particle.
-    flo = boxes[:, 0, :].astype(np.float64)
-    fhi = boxes[:, 1, :].astype(np.float64)
+    """Rank whose cell box holds each particle; out (n,) int64. Non-finite positions keep
+    ``me``. (Migration asks `leavers` for the few particles that move instead.)"""
+    n = x.shape[0]
+    index = np.empty(n, dtype=np.int64)
+    owner = np.empty(n, dtype=np.int64)
+    k = leavers(x, domain_lo, inv_dx, boxes, me, index, owner)
     for p in range(n):
         out[p] = me
-        inside = True
-        finite = True
-        for a in range(dim):
-            xi = (x[p, a] - domain_lo[a]) * inv_dx
-            if not (xi > -BIG and xi < BIG):  # false for NaN too
-                finite = False
-            if xi < flo[me, a] or xi >= fhi[me, a]:
-                inside = False
-        if inside or not finite:
+    for j in range(k):
+        out[index[j]] = owner[j]
+    return out
+
+
+@njit(cache=True)
+def leavers(x, domain_lo, inv_dx, boxes, me, index, owner):
+    """Particles whose cell is outside this rank's box (``boxes[me]``): writes their indices
+    (increasing) to ``index`` and their owners to ``owner`` (both at least as long as x) and
+    returns how many. Non-finite positions stay (the instability guard reports them).
+
+    floor(xi) >= lo <=> xi >= lo and floor(xi) < hi <=> xi < hi for integers lo, hi, so the
+    cell test compares the grid coordinate with the box as floats, without a floor; the
+    own box is held in scalars, the test most particles end with."""
+    n, dim = x.shape
+    three = dim == 3
+    flo = boxes[:, 0, :].astype(np.float64)
+    fhi = boxes[:, 1, :].astype(np.float64)
+    d0, d1 = domain_lo[0], domain_lo[1]
+    d2 = domain_lo[2] if three else 0.0
+    l0, l1, h0, h1 = flo[me, 0], flo[me, 1], fhi[me, 0], fhi[me, 1]
+    l2 = flo[me, 2] if three else -1.0
+    h2 = fhi[me, 2] if three else 1.0
+    count = 0
+    for p in range(n):
+        c0 = (x[p, 0] - d0) * inv_dx
+        c1 = (x[p, 1] - d1) * inv_dx
+        c2 = (x[p, 2] - d2) * inv_dx if three else 0.0
+        if c0 >= l0 and c0 < h0 and c1 >= l1 and c1 < h1 and c2 >= l2 and c2 < h2:
             continue
-        for b in range(n_boxes):
+        if not (abs(c0) < BIG and abs(c1) < BIG and abs(c2) < BIG):  # false for NaN too
+            continue
+        for b in range(boxes.shape[0]):
             if b == me:
                 continue
-            inside = True
-            for a in range(dim):
-                xi = (x[p, a] - domain_lo[a]) * inv_dx
-                if xi < flo[b, a] or xi >= fhi[b, a]:
-                    inside = False
-                    break
-            if inside:
-                out[p] = b
+            if (c0 >= flo[b, 0] and c0 < fhi[b, 0] and c1 >= flo[b, 1] and c1 < fhi[b, 1]
+                    and (not three or (c2 >= flo[b, 2] and c2 < fhi[b, 2]))):
+                index[count] = p
+                owner[count] = b
+                count += 1
                 break
-    return out
+    return count
 
 
 @njit(cache=True)

@@ -18,8 +18,8 @@ import numpy as np
 from mpi4py import MPI
 
 from .comm import Communicator
-from .decomposition import (BIG, cell_bounds, intersect, is_empty, owner_ranks, particle_cells,
-                            points_in_boxes, recursive_bisection)
+from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers, owner_ranks,
+                            particle_cells, points_in_boxes, recursive_bisection)
 from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
                        pack_region, pack_rows, region_size, region_slices, row_dtype,
                        unpack_region, unpack_rows)
@@ -119,10 +119,15 @@ class Domain(Communicator):
         just face neighbours); received particles are appended. Returns the number sent."""
         if self.size == 1:
             return 0
-        owner = self.owners(particles["x"])
-        leaving = np.flatnonzero(owner != self.rank)
-        order = leaving[np.argsort(owner[leaving], kind="stable")]
-        send_counts = np.bincount(owner[order], minlength=self.size).astype(np.int64)
+        # Room for every particle, but only the leavers' entries are written (untouched
+        # pages of a large np.empty are never resident).
+        leaving = np.empty(particles.n, dtype=np.int64)
+        owner = np.empty(particles.n, dtype=np.int64)
+        k = leavers(particles["x"], self.domain_lo, self.inv_dx, self.boxes, self.rank,
+                    leaving, owner)
+        leaving, owner = leaving[:k], owner[:k]
+        order = leaving[np.argsort(owner, kind="stable")]
+        send_counts = np.bincount(owner, minlength=self.size).astype(np.int64)
         recv_counts = np.empty(self.size, dtype=np.int64)
         self.comm.Alltoall(send_counts, recv_counts)
         if not len(order) and not recv_counts.any():
