@@ -358,6 +358,9 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     sim = Simulation(scene, domain)
     specs = dict(sim.particles.specs)
     sim.particles = ParticleSet(scene.dim, specs, capacity=len(fields["id"]))
+    if "J" in specs and "J" not in fields and "F" in fields:
+        # Written before fluid-only scenes carried J alone: J = det F is their whole state.
+        fields["J"] = np.linalg.det(fields["F"])
     sim.particles.append({k: v for k, v in fields.items() if k in specs})
     same_count = int(meta["n_ranks"]) == domain.size
     if same_count:

@@ -160,3 +160,42 @@ def test_unwritable_folder_is_a_checkpoint_error(tmp_path):
     blocker.write_text("")
     with pytest.raises(CheckpointError, match="cannot"):
         write(blocker / "sub", 2)
+
+
+def test_fluid_checkpoint_holding_F_restarts_with_J(tmp_path, monkeypatch):
+    """A checkpoint of a fluid-only scene written when particles still carried F (before J
+    alone) restarts with J = det F, not with the fill value 1."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from hpcmpm import runner
+    from hpcmpm.io import checkpoint
+    from hpcmpm.parallel import Communicator
+
+    out = tmp_path / "dam"
+    exe = Path(sys.executable).with_name("hpcmpm")
+    proc = subprocess.run([str(exe), "run", "inputs/dam_break_2d.toml", "--out", str(out),
+                           "--quiet", "--set", "simulation.end_time=0.05"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    ckpt = latest_checkpoint(out)
+    fields, _ = read_checkpoint(ckpt, Communicator())
+    J = fields["J"].copy()
+    assert np.abs(J - 1.0).max() > 1e-4  # the column has compressed: 1 would be wrong
+
+    original = checkpoint.read_checkpoint
+
+    def with_F_instead_of_J(path, comm):
+        old, meta = original(path, comm)
+        j = old.pop("J")
+        old["F"] = np.sqrt(j)[:, None, None] * np.eye(2)  # the fluid's isotropic F, det = J
+        return old, meta
+
+    monkeypatch.setattr(checkpoint, "read_checkpoint", with_F_instead_of_J)
+    sim, _, _ = runner.restore_simulation(str(ckpt), Communicator(), None)
+    order = np.argsort(sim.particles["id"])
+    assert "F" not in sim.particles
+    # det of sqrt(J) I in floating point: equal to J within a few ulps.
+    assert np.allclose(sim.particles["J"][order], J[np.argsort(fields["id"])], rtol=1e-14,
+                       atol=0)
