@@ -186,11 +186,12 @@ class Runner:
             self.frame_index += 1
             return
         sim = self.sim
-        diag = sim.diagnostics()
-        attrs = {k: v for k, v in diag.items()}
-        derived = {"tau": sim.kirchhoff_stress()} if "tau" in self.writer.fields else None
-        self.writer.write(sim.particles, sim.time, sim.step_index, extra_attrs=attrs,
-                          derived=derived)
+        with sim.timers("output"):
+            diag = sim.diagnostics()
+            attrs = {k: v for k, v in diag.items()}
+            derived = {"tau": sim.kirchhoff_stress()} if "tau" in self.writer.fields else None
+            self.writer.write(sim.particles, sim.time, sim.step_index, extra_attrs=attrs,
+                              derived=derived)
         self.frame_index += 1
 
     @property
@@ -211,8 +212,9 @@ class Runner:
             "rank_counts": np.asarray(domain.allgather(sim.particles.n), dtype=np.int64),
             "needs_sort": np.asarray(domain.allgather(sim.needs_sort), dtype=np.int8),
         }
-        self._latest_ckpt = write_checkpoint(self.options.out_dir, domain, sim.particles, meta,
-                                             keep=self.options.checkpoint_keep)
+        with sim.timers("checkpoint"):
+            self._latest_ckpt = write_checkpoint(self.options.out_dir, domain, sim.particles,
+                                                 meta, keep=self.options.checkpoint_keep)
 
 
 # -- commands --------------------------------------------------------------------------------

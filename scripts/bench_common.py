@@ -193,6 +193,25 @@ def timed(run_steps, steps: int) -> float:
     return time.perf_counter() - start
 
 
+def frame_output_ms(sim, frames: int = 3) -> float:
+    """Least wall time (ms) of writing one frame of ``sim`` (x, v, F or J, mass, id,
+    material; serial HDF5, one file per frame) into a temporary folder, as `hpcmpm run`
+    writes them. The peer writes nothing, so this is reported beside the step, not in it."""
+    import tempfile
+
+    from hpcmpm.io.frames import FrameWriter
+
+    best = math.inf
+    with tempfile.TemporaryDirectory(prefix="hpcmpm-bench-") as folder:
+        writer = FrameWriter(folder, sim.domain, sim.scene.text, sim.dim, [],
+                             {"restart_chain": []}, mode="serial")
+        for _ in range(frames):
+            start = time.perf_counter()
+            writer.write(sim.particles, sim.time, sim.step_index)
+            best = min(best, time.perf_counter() - start)
+    return 1e3 * best
+
+
 def summarize(seconds: list[float], steps: int, n: int) -> dict:
     """ms/step and particle-steps/s, best and median over repetitions."""
     best, med = min(seconds), statistics.median(seconds)

@@ -64,6 +64,7 @@ def bench_scene(key: str, steps: int, reps: int, smoke: bool, warmup: int) -> di
         t_hp.append(bc.timed(run_hpcmpm, steps))
         t_peer.append(bc.timed(run_peer, steps))
     hp, pe = bc.summarize(t_hp, steps, s.n), bc.summarize(t_peer, steps, s.n)
+    output_ms = bc.frame_output_ms(sim)
     p = sim.particles
     x_hp = np.empty_like(s.x0)
     x_hp[p["id"]] = p["x"]
@@ -78,6 +79,7 @@ def bench_scene(key: str, steps: int, reps: int, smoke: bool, warmup: int) -> di
         "ratio_hpcmpm_over_peer_min": pe["ms_per_step_min"] / hp["ms_per_step_min"],
         "ratio_hpcmpm_over_peer_median": pe["ms_per_step_median"] / hp["ms_per_step_median"],
         "hpcmpm_phases_ms_per_step": bc.phase_ms(sim.timers, steps * reps),
+        "hpcmpm_output_ms_per_frame": output_ms,
         "max_position_difference_cells": float(np.abs(x_hp - x_peer).max() * s.n_grid),
     }
 
@@ -114,7 +116,8 @@ def main(argv=None) -> int:
           r["max_position_difference_cells"]] for r in results])
     for r in results:
         print(f"{r['scene']}: hpcmpm phases (ms/step): " + ", ".join(
-            f"{k} {v:.3f}" for k, v in r["hpcmpm_phases_ms_per_step"].items()))
+            f"{k} {v:.3f}" for k, v in r["hpcmpm_phases_ms_per_step"].items())
+            + f"; output {r['hpcmpm_output_ms_per_frame']:.2f} ms/frame")
     path = bc.write_json("peer.json", {"machine": bc.machine_info(), "results": results},
                          args.out)
     print(f"wrote {path}")

@@ -62,6 +62,11 @@ def main(argv=None) -> int:
                     [[r["scene"]] + [r["hpcmpm_phases_ms_per_step"].get(k, 0.0) for k in PHASES]
                      + [sum(r["hpcmpm_phases_ms_per_step"].values())]
                      for r in peer["results"]]))
+        frames = [f"{r['scene']} {r['hpcmpm_output_ms_per_frame']:.2f} ms"
+                  for r in peer["results"] if "hpcmpm_output_ms_per_frame" in r]
+        if frames:
+            print("\nOutput (not part of the step; the peer writes nothing): one frame, serial "
+                  "HDF5, " + ", ".join(frames) + ".")
         print()
     ceiling = load(folder, "ceiling.json")
     if ceiling:
