@@ -79,7 +79,11 @@ def frame_grid(file: str, time: float, dim: int, n: int,
 
 def xdmf_text(frames: list[tuple[str, float, int, int, dict]]) -> str:
     """The whole file for ``frames``: (relative file, time, dim, n, shapes) in order."""
-    body = "".join(frame_grid(*frame) for frame in frames)
+    return xdmf_document("".join(frame_grid(*frame) for frame in frames))
+
+
+def xdmf_document(body: str) -> str:
+    """The XDMF file around ``body``, the frames' ``Uniform`` grids."""
     return ('<?xml version="1.0" ?>\n'
             '<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>\n'
             '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">\n'
@@ -111,9 +115,13 @@ class FrameCatalog:
     def __init__(self, out_dir: Path):
         self.out_dir = Path(out_dir)
         self.entries: dict[int, tuple[float, int, int, dict]] = {}
+        # Each frame's grid text, rendered once: the file is rewritten after every frame, and
+        # re-rendering every earlier frame made a long run's output quadratic in its frames.
+        self._grids: dict[tuple[int, str], str] = {}
 
     def add(self, index: int, time: float, dim: int, n: int, shapes: dict) -> None:
         self.entries[index] = (time, dim, n, shapes)
+        self._grids = {k: v for k, v in self._grids.items() if k[0] != index}
 
     def on_disk(self) -> dict[int, Path]:
         found = {}
@@ -132,7 +140,12 @@ class FrameCatalog:
                     self.entries[index] = read_frame_header(path)
                 except (OSError, KeyError):
                     continue
-        frames = [(files[i].name, *self.entries[i]) for i in sorted(self.entries)]
+        body = []
+        for i in sorted(self.entries):
+            key = (i, files[i].name)
+            if key not in self._grids:
+                self._grids[key] = frame_grid(files[i].name, *self.entries[i])
+            body.append(self._grids[key])
         target = self.out_dir / XDMF_NAME
-        write_text_atomically(target, xdmf_text(frames))
+        write_text_atomically(target, xdmf_document("".join(body)))
         return target
