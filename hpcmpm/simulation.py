@@ -28,6 +28,10 @@ log = logging.getLogger(__name__)
 MAX_REPORTED = 8
 
 
+def _no_sync() -> None:
+    pass
+
+
 def deformation_field(materials) -> str:
     """``"J"`` when every material is volumetric (its stress needs det F only), else ``"F"``."""
     return "J" if materials and all(m.volumetric for m in materials) else "F"
@@ -94,6 +98,7 @@ class Simulation:
         # Optional ``forcing(sim, dt)`` that adds ``dt * b`` to particle velocities before P2G:
         # through P2G that is exactly the external nodal force sum_p w_ip m_p b_p.
         self.forcing = None
+        self.sync_phases = False
         from .timers import PhaseTimers
 
         self.timers = PhaseTimers()
@@ -114,23 +119,33 @@ class Simulation:
     def step(self, dt: float) -> None:
         """Advance by ``dt``: one explicit MPM step (000 §3.3, Fig. 3.1)."""
         p, grid, domain, t = self.particles, self.grid, self.domain, self.timers
+        # With sync_phases (benchmarks only) every rank meets before each phase, so a phase
+        # timer holds that phase's own work and the waiting for other ranks is left out.
+        sync = domain.barrier if self.sync_phases else _no_sync
+        sync()
         with t("sort"):
             self.sort_if_needed()
         if self.forcing is not None:
             self.forcing(self, dt)  # body force as a particle impulse (manufactured solutions)
+        sync()
         with t("p2g"):
             grid.fit(*domain.grid_box(p, self.order))
         # Per chunk: plastic projection and Kirchhoff stress, then P2G of mass, momentum and
         # dt f_i (000 eq. 3.1; Hu 2018 eq. 17).
         self.scatter_stress(dt)
+        sync()
         with t("halo"):
             domain.sum_ghosts_to_owners(grid, *self._scattered)
+        sync()
         with t("grid"):
             self.update_grid(dt)  # v_i = (p_i + dt f_i)/m_i + dt g, then boundaries
+        sync()
         with t("halo"):
             domain.fill_ghosts(grid, *self._gathered)
+        sync()
         with t("g2p"):
             self.gather(dt)  # v, C, F <- (I + dt grad v) F, x <- x + dt v
+        sync()
         with t("migrate"):
             n_before = p.n
             sent = domain.migrate(p)

@@ -7,7 +7,10 @@ launches (1, 2, 1, 2, ... for ``--rounds`` rounds); every launch times ``--reps`
 ``t1 / (2 t2)`` from the per-step medians (and from the minima). Unless ``--no-peer``, the peer
 (Taichi, CPU, float64) runs the same scene with 1 and 2 threads for comparison, in separate
 processes. Every launch has a timeout (``--timeout`` seconds), so a deadlock fails the
-benchmark instead of hanging it. Writes bench_results/parallel.json.
+benchmark instead of hanging it. Writes bench_results/parallel.json. With ``--sync-phases``
+every rank meets at a barrier before each phase, so the phase times are each phase's own work
+without the waiting for the slower rank (written to parallel_sync_phases.json; its step
+times include the barriers and are not an efficiency).
 
     python scripts/bench_parallel.py --steps 10 --reps 5 --rounds 2
 """
@@ -46,6 +49,7 @@ def hpcmpm_worker(args) -> None:
     comm = Communicator()
     s = bc.make_scene(args.scene, args.smoke)
     sim = bc.build_hpcmpm(s, comm)
+    sim.sync_phases = args.sync_phases
     domain = sim.domain
     for _ in range(args.warmup):
         sim.step(s.dt)
@@ -101,7 +105,7 @@ def launch(cmd: list[str], env: dict, timeout: float) -> dict:
 def worker_args(args) -> list[str]:
     a = ["--scene", args.scene, "--steps", str(args.steps), "--reps", str(args.reps),
          "--warmup", str(args.warmup)]
-    return a + (["--smoke"] if args.smoke else [])
+    return a + (["--smoke"] if args.smoke else []) + (["--sync-phases"] if args.sync_phases else [])
 
 
 def main(argv=None) -> int:
@@ -115,6 +119,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-peer", action="store_true", help="skip the Taichi 1/2-thread runs")
     ap.add_argument("--timeout", type=float, default=600.0, help="seconds per launch")
     ap.add_argument("--out", default=None, help="results folder (default bench_results/)")
+    ap.add_argument("--sync-phases", action="store_true",
+                    help="barrier before every phase: the phase times leave out waiting for "
+                         "other ranks (the step times then include the barriers)")
     ap.add_argument("--worker", choices=["hpcmpm", "peer"], help=argparse.SUPPRESS)
     ap.add_argument("--threads", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -172,10 +179,14 @@ def main(argv=None) -> int:
             steps = args.steps * args.reps
             print(f"{k} phases (ms/step, slowest rank, last launch): " + ", ".join(
                 f"{name} {1e3 * sec / steps:.2f}" for name, sec in ph.items()))
-    path = bc.write_json("parallel.json", {
+    if args.sync_phases:
+        print("(--sync-phases: the step times include a barrier per phase; quote the phase "
+              "times, not this efficiency)")
+    name = "parallel_sync_phases.json" if args.sync_phases else "parallel.json"
+    path = bc.write_json(name, {
         "machine": bc.machine_info(), "scene": args.scene, "particles": s.n,
         "steps_per_rep": args.steps, "rounds": args.rounds, "runs": summary,
-        "efficiency": eff}, args.out)
+        "efficiency": eff, "sync_phases": args.sync_phases}, args.out)
     print(f"wrote {path}")
     return 0
 

@@ -81,6 +81,14 @@ def test_parallel_smoke(tmp_path):
     assert {"hpcmpm_1", "hpcmpm_2"} <= set(doc["runs"])
     assert doc["runs"]["hpcmpm_2"]["particles_per_rank"][0] > 0
     assert 0 < doc["efficiency"]["hpcmpm"]["efficiency_median"]
+    # The barrier-per-phase mode: every rank takes the same phases, so it must not hang, and
+    # its phases are recorded for both rank counts.
+    run_script("bench_parallel.py", "--smoke", "--reps", "2", "--steps", "2", "--rounds", "1",
+               "--timeout", "120", "--out", str(tmp_path), "--no-peer", "--sync-phases")
+    synced = load_finite(tmp_path / "parallel_sync_phases.json")
+    assert synced["sync_phases"] is True
+    assert {"p2g", "g2p", "halo", "migrate"} <= set(
+        synced["runs"]["hpcmpm_2"]["phases_max_over_ranks_s"])
 
 
 def test_memory_smoke(tmp_path):
