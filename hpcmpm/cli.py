@@ -45,16 +45,20 @@ def _validate(args) -> int:
 
 
 def _run(args) -> int:
-    from .runner import configure_numba_cache, run_command
+    from . import numba_cache
 
-    configure_numba_cache()
+    numba_cache.configure()  # before the runner imports numba
+    from .runner import run_command
+
     return run_command(args)
 
 
 def _restart(args) -> int:
-    from .runner import configure_numba_cache, restart_command
+    from . import numba_cache
 
-    configure_numba_cache()
+    numba_cache.configure()
+    from .runner import restart_command
+
     return restart_command(args)
 
 

@@ -283,12 +283,6 @@ def make_writer(sim: Simulation, out_dir: Path, restart_chain: list[str], frame_
                        list(sim.scene.output.fields), provenance, first_frame=frame_index)
 
 
-def configure_numba_cache() -> None:
-    """Compile once: a cache directory shared by all ranks, so a second run starts warm."""
-    os.environ.setdefault("NUMBA_CACHE_DIR",
-                          str(Path.home() / ".cache" / "hpcmpm" / "numba"))
-
-
 def report_done(comm: Communicator, out_dir: Path, diag: dict, wall: float, steps: int,
                 n: int) -> None:
     if comm.rank:

@@ -135,7 +135,9 @@ def main(argv=None) -> int:
         return 0
 
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
-    env.setdefault("NUMBA_CACHE_DIR", str(bc.REPO / ".numba_cache"))
+    from hpcmpm.numba_cache import source_fingerprint
+
+    env.setdefault("NUMBA_CACHE_DIR", str(bc.REPO / ".numba_cache" / source_fingerprint()))
     me = [sys.executable, str(Path(__file__).resolve())]
     with_peer = not args.no_peer
     if with_peer:

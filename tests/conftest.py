@@ -21,7 +21,12 @@ from pathlib import Path
 
 import pytest
 
+from hpcmpm.numba_cache import source_fingerprint
+
 ROOT = Path(__file__).resolve().parents[1]
+# Before any test imports numba (it reads the variable once): the repository's cache for this
+# state of the sources, shared with every subprocess the tests start.
+os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache" / source_fingerprint()))
 CHILD_ENV = "HPCMPM_MPI_CHILD"
 RANKS_ENV = "HPCMPM_MPI_RANKS"
 SHARED_TMP_ENV = "HPCMPM_SHARED_TMP"
