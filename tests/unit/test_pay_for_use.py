@@ -1,10 +1,12 @@
 """A scene pays only for what it uses: fields, kernels and grid memory."""
 
+from pathlib import Path
+
 import numpy as np
 
 from hpcmpm.materials import MATERIALS
 from hpcmpm.runner import simulate
-from hpcmpm.scene import load_scene
+from hpcmpm.scene import load_scene, parse_scene
 
 
 def test_elastic_scene_has_no_plastic_fields_and_never_runs_the_snow_kernel(monkeypatch):
@@ -69,3 +71,38 @@ def test_a_fluid_only_scene_carries_J_instead_of_F_and_matches_the_F_path(monkey
     assert dx_max < 1e-12, dx_max
     assert np.abs(fluid.particles["J"][a] - J_ref).max() < 1e-11
     assert np.abs(J_ref - 1.0).max() > 1e-3  # the check is not vacuous: the fluid compressed
+
+
+def test_a_fluid_beside_a_solid_keeps_F_and_stays_isotropic():
+    """One material that needs F puts the whole scene on the F path; the fluid's particles
+    then carry F, which its stress update resets to sqrt(J) I (no memory of shear)."""
+    text = Path("inputs/dam_break_2d.toml").read_text() + """
+[[materials]]
+name = "rubber"
+type = "neo_hookean"
+density = 1000.0
+E = 1.0e5
+nu = 0.3
+
+[[bodies]]
+name = "ball"
+material = "rubber"
+shape = "sphere"
+center = [0.7, 0.2]
+radius = 0.1
+"""
+    sim = simulate(parse_scene(text, path="<fluid and solid>"), end_time=0.05)
+    p = sim.particles
+    assert "F" in p and "J" not in p
+    water = p["group"] == 0
+    assert water.any() and (~water).any()
+    F, C = p["F"][water], p["C"][water]
+    assert np.abs(np.linalg.det(F) - 1.0).max() > 1e-4  # the column has started to compress
+    # The last stress update reset F to s I (s = sqrt J) and the last G2P made it
+    # (I + dt C) s I (MLS: grad v = C), so F01 = s dt C01 and F10 = s dt C10, whence
+    # F01 C10 = F10 C01 up to a few ulps. A fluid F carrying the shear of earlier steps
+    # would break this at O(1).
+    lhs, rhs = F[:, 0, 1] * C[:, 1, 0], F[:, 1, 0] * C[:, 0, 1]
+    scale = np.abs(lhs).max()
+    assert scale > 0.0  # the flow shears: the check is not vacuous
+    assert np.abs(lhs - rhs).max() <= 1e-12 * scale
