@@ -196,12 +196,9 @@ class Simulation:
         self.group_slices = [(int(bounds[g]), int(bounds[g + 1]))
                              for g in range(len(self.materials))]
 
-    def material_fields(self, g: int, start: int | None = None,
-                        stop: int | None = None) -> dict[str, np.ndarray]:
-        """Views of material ``g``'s particle rows (all of them, or rows start..stop)."""
-        first, last = self.group_slices[g]
-        start = first if start is None else start
-        stop = last if stop is None else stop
+    def material_fields(self, g: int) -> dict[str, np.ndarray]:
+        """Views of material ``g``'s particle rows."""
+        start, stop = self.group_slices[g]
         p = self.particles
         return {name: p[name][start:stop] for name in p.field_names()}
 
