@@ -190,6 +190,12 @@ class Simulation:
         if not self._needs_sort:
             self.find_group_slices()
 
+    def ensure_grouped(self) -> None:
+        """Sort now if a sort is pending (or none ran yet), so `group_slices` hold each
+        material's particles; for work between steps (diagnostics, output)."""
+        if self._needs_sort or not self.group_slices:
+            self.sort_if_needed()
+
     def find_group_slices(self) -> None:
         """Each material's contiguous slice of the (group-sorted) particles."""
         bounds = np.searchsorted(self.particles["group"], np.arange(len(self.materials) + 1))
@@ -236,8 +242,7 @@ class Simulation:
         """The Kirchhoff stress of every particle (n, d, d), for output. Computed on copies
         of the material state, so a plastic projection here does not change the run."""
         p = self.particles
-        if self._needs_sort or not self.group_slices:
-            self.sort_if_needed()
+        self.ensure_grouped()
         tau = np.zeros((p.n, self.dim, self.dim))
         for g, material in enumerate(self.materials):
             start, stop = self.group_slices[g]
@@ -312,8 +317,7 @@ class Simulation:
     def diagnostics(self) -> dict[str, float]:
         """Global mass, linear/angular momentum, kinetic and elastic energy."""
         p = self.particles
-        if self.group_slices == [] or self._needs_sort:
-            self.sort_if_needed()
+        self.ensure_grouped()
         with_affine = self.scheme >= APIC
         inertia = self.dx * self.dx / self.dinv_factor
         local = np.zeros(9)

@@ -58,6 +58,12 @@ def _stress_3d(F, tau, E):
                 F[p, i, j] = r if i == j else 0.0
 
 
+@njit(cache=True, inline="always")
+def _psi(J, E):
+    """Energy density E (J - 1 - ln J)."""
+    return E * (J - 1.0 - math.log(J))
+
+
 @njit(cache=True)
 def _stress_from_J(J, tau, E):
     """tau_p = E (J_p - 1) I from the volume ratio alone; J (n,), tau (n, d, d)."""
@@ -82,7 +88,7 @@ def _stress_from_J(J, tau, E):
 def _energy_from_J(J, vol0, E):
     total = 0.0
     for p in range(J.shape[0]):
-        total += vol0[p] * E * (J[p] - 1.0 - math.log(J[p]))
+        total += vol0[p] * _psi(J[p], E)
     return total
 
 
@@ -91,7 +97,7 @@ def _energy_2d(F, vol0, E):
     total = 0.0
     for p in range(F.shape[0]):
         J = det2(load2(F, p))
-        total += vol0[p] * E * (J - 1.0 - math.log(J))
+        total += vol0[p] * _psi(J, E)
     return total
 
 
@@ -100,7 +106,7 @@ def _energy_3d(F, vol0, E):
     total = 0.0
     for p in range(F.shape[0]):
         J = det3(load3(F, p))
-        total += vol0[p] * E * (J - 1.0 - math.log(J))
+        total += vol0[p] * _psi(J, E)
     return total
 
 
