@@ -105,6 +105,7 @@ class Simulation:
         self._dummy_C = np.zeros((1, self.dim, self.dim))
         self.stress_chunk = self.stress_chunk_bytes // (8 * self.dim * self.dim)
         self._tau = np.empty((self.stress_chunk, self.dim, self.dim))
+        self._zero_tau = np.zeros((0, self.dim, self.dim))  # scatter_mass_momentum only
         self._bad = np.empty(MAX_REPORTED, dtype=np.int64)
         self._keys = np.empty(0, dtype=np.int64)
         self._order = np.empty(0, dtype=np.int64)
@@ -290,6 +291,29 @@ class Simulation:
                 for clamp in self.prescribed:
                     clamp.scatter(p, grid, self.order)
 
+    def scatter_mass_momentum(self) -> None:
+        """P2G of mass and momentum only (no stress): the semi-implicit step finds the
+        stress impulse in its solve. The P2G kernel with dt = 0 and a zero stress adds none."""
+        p, grid = self.particles, self.grid
+        with self.phase("p2g"):
+            if len(self._zero_tau) < p.n:
+                self._zero_tau = np.zeros((p.capacity, self.dim, self.dim))
+            impulse = grid["impulse"] if self.split_force else grid["momentum"]
+            C = p["C"] if "C" in p else None
+            ranges = [(0, p.n)] if self._all_on_grid else \
+                [self.group_slices[g] for g in self._on_grid]
+            for start, stop in ranges:
+                if stop > start:
+                    SCATTER[self.dim](
+                        p["x"][start:stop], p["v"][start:stop],
+                        self._dummy_C if C is None else C[start:stop], p["mass"][start:stop],
+                        p["vol0"][start:stop], self._zero_tau[: stop - start],
+                        self._static_scheme, self._static_order, self.dinv_factor, self.dx,
+                        self.domain_lo, grid.origin, 0.0, self._static_split, grid["mass"],
+                        grid["momentum"], impulse)
+            for clamp in self.prescribed:
+                clamp.scatter(p, grid, self.order)
+
     def scatter_forces(self, dt: float) -> None:
         """The force channel: per-particle forces of the step extensions (peridynamic bond
         forces of integral-based MPM, 003 eq. 5.2) reach the grid as ``dt sum_p w_ip f_p``."""
@@ -449,9 +473,15 @@ class Simulation:
         local[8] = sum(m.energy(self.material_fields(g)) for g, m in enumerate(self.materials)
                        if self.group_slices[g][1] > self.group_slices[g][0])
         total = self.domain.sum(local)
-        return {
+        out = {
             "mass": total[0],
             "momentum": total[1:4].copy(), "angular_momentum": total[4:7].copy(),
             "kinetic_energy": total[7], "elastic_energy": total[8],
             "total_energy": total[7] + total[8],
         }
+        # The integrator's own figures (semi-implicit: CG iterations per step since the
+        # previous call, i.e. since the previous frame in a run); the same on every rank.
+        report = getattr(self.integrator, "diagnostics", None)
+        if report is not None:
+            out.update(report())
+        return out

@@ -214,6 +214,13 @@ class PrescribedSet:
                               org, float(dx), vec3(domain_lo, self.dim), self.centre(t),
                               self.velocity, self.omega)
 
+    def constrain(self, velocity, origin, dx, domain_lo, t, dt, grid, basis, count) -> None:
+        """Every node this set marked is fixed in all directions (the semi-implicit solve's
+        constraint mask; `apply` gives the values)."""
+        marked = block3(grid[self.mark_field], self.dim) > 0.0
+        count[marked] = self.dim
+        basis[marked] = np.eye(3)
+
 
 def parameters(sets: list[PrescribedSet]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(centres, velocities, omegas), each (S, 3), in set-index order, for `apply_prescribed`."""
