@@ -13,10 +13,13 @@ accepts in a scene's ``[[materials]]`` table (besides ``name``, ``type`` and ``d
     low_inclusive: bool    True: value >= low is allowed; False (default): value > low
     high_inclusive: bool   True: value <= high is allowed; False (default): value < high
     doc: str               one line for the user: meaning and units
+    choices: tuple[str]    non-empty: the value is a string, one of these (low/high unused)
 
 So ``Param(0.0, math.inf)`` is "required, > 0" and ``Param(-1.0, 0.5)`` is "required,
 -1 < value < 0.5". A value must be a real number (bool is not) and finite unless a bound is
-infinite and inclusive (none of the built-in models allows that).
+infinite and inclusive (``relaxation_time`` of oldroyd_b: ``Param(0, inf, high_inclusive=True)``
+accepts ``inf``). A choice key such as ``plasticity = "ob_spd"`` has ``choices=(...)`` and a
+string default.
 
 `check_params(parameters, params)` returns one problem string per bad key, in the house format
 ``"{key}: {what is wrong}"``, e.g. ``"nu: must be < 0.5, got 0.5"``, ``"E: missing"``,
@@ -45,6 +48,7 @@ class Param(NamedTuple):
     low_inclusive: bool = False
     high_inclusive: bool = False
     doc: str = ""
+    choices: tuple = ()
 
 
 YOUNG = Param(0.0, math.inf, doc="Young's modulus E (stress units)")
@@ -81,11 +85,18 @@ def check_params(parameters: dict[str, Param], params: dict[str, Any]) -> list[s
             if spec.required:
                 problems.append(f"{key}: missing")
             continue
+        if spec.choices:
+            if params[key] not in spec.choices:
+                problems.append(f"{key}: must be one of {', '.join(map(repr, spec.choices))}, "
+                                f"got {params[key]!r}")
+            continue
         x = _number(params[key])
         if x is None or math.isnan(x):
             problems.append(f"{key}: must be a number, got {params[key]!r}")
             continue
-        if not math.isfinite(x):
+        if not math.isfinite(x) and not (
+                (x == math.inf and spec.high == math.inf and spec.high_inclusive)
+                or (x == -math.inf and spec.low == -math.inf and spec.low_inclusive)):
             problems.append(f"{key}: must be finite, got {x}")
             continue
         if spec.low_inclusive and x < spec.low:
@@ -126,7 +137,7 @@ class Material:
     def __init__(self, spec, dim: int):
         if dim not in (2, 3):
             raise ValueError(f"dim must be 2 or 3, got {dim}")
-        problems = check_params(self.parameters, dict(spec.params))
+        problems = type(self).parameter_problems(dict(spec.params))
         if not (math.isfinite(spec.density) and spec.density > 0.0):
             problems.append(f"density: must be > 0, got {spec.density:g}")
         if problems:
@@ -134,10 +145,17 @@ class Material:
         self.spec = spec
         self.dim = dim
         self.density = float(spec.density)
-        self.params = {key: float(spec.params[key]) if key in spec.params else p.default
+        self.params = {key: (spec.params[key] if p.choices else float(spec.params[key]))
+                       if key in spec.params else p.default
                        for key, p in self.parameters.items()}
         self.mu = 0.0
         self.lam = 0.0
+
+    @classmethod
+    def parameter_problems(cls, params: dict[str, Any]) -> list[str]:
+        """Problems with a scene's parameters: the schema check, plus any rule between keys a
+        model adds (e.g. "mu and lambda, or E and nu")."""
+        return check_params(cls.parameters, params)
 
     def wave_speed(self) -> float:
         """P-wave speed sqrt((lam + 2 mu) / rho) of the small-strain response, for the CFL

@@ -59,14 +59,32 @@ force. The Hessian-vector product is the directional derivative of that expressi
 from __future__ import annotations
 
 import math
+from typing import Any, ClassVar
 
+import numpy as np
 from numba import njit
 
-from .matrix import (add, add_identity, axpy, ddot, det, dim_of, inverse, load, mul, mul_bt,
-                     root_d, scale, store, sub, sym, trace, transpose)
+from ..state import SCALAR, TENSOR, FieldSpec
+from .base import POISSON, YOUNG, Material, Param, check_params, lame
+from .matrix import (EYE, add, add_identity, axpy, ddot, det, dim_of, inverse, load, mul,
+                     mul_bt, root_d, scale, store, sub, sym, trace, transpose)
 
 OB_EXPLICIT, OB_SPD, FE, FE_BDF2, HB, VM = 0, 1, 2, 3, 4, 5
-PLASTICITY_MODES = {"ob_explicit": OB_EXPLICIT, "ob_spd": OB_SPD, "fe": FE, "fe_bdf2": FE_BDF2}
+PLASTICITY_MODES = {"ob_spd": OB_SPD, "ob_explicit": OB_EXPLICIT, "fe": FE, "fe_bdf2": FE_BDF2}
+
+# Keys every b_E model accepts: the moduli as (mu, lambda) or (E, nu), and the viscosity.
+ELASTIC_KEYS = {
+    "mu": Param(0.0, math.inf, required=False, low_inclusive=True,
+                doc="shear modulus mu (stress units), 0 allowed (a Newtonian fluid); give mu "
+                    "and lambda, or E and nu"),
+    "lambda": Param(0.0, math.inf, required=False, low_inclusive=True,
+                    doc="Lame's first parameter lambda (stress units)"),
+    "E": YOUNG._replace(required=False),
+    "nu": POISSON._replace(required=False),
+    "viscosity": Param(0.0, math.inf, required=False, default=0.0, low_inclusive=True,
+                       doc="Newtonian viscosity mu_N (dynamic: stress x time); "
+                           "sigma_N = 2 mu_N sym(grad v)"),
+}
 
 
 # -- per-particle pieces ---------------------------------------------------------------------
@@ -332,3 +350,117 @@ def implicit_hessian(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, 
         w = dt * vol0[p]
         store(dG, p, axpy(2.0 * mu_n * J[p] * w, sym(D),
                           scale(w, _hessian_point(S, R, B, L, D, dt, J[p], mu, lam))))
+
+
+# -- the material classes' common part -------------------------------------------------------
+class LeftCauchyGreenMaterial(Material):
+    """A b_E-based elastoplastic model (module docstring): deformation mode "L", state b and
+    J (plus Fe, Fe_prev for the fe updates), Newtonian viscosity, the semi-implicit hooks.
+
+    Subclasses set ``mode`` (or pick it in __init__), ``rescale_state`` and their extra keys,
+    and fill ``self.inv_wi``, ``self.sigma_y``, ``self.inv_h``, ``self.eta``.
+    """
+
+    deformation: ClassVar[str] = "L"
+    uses_svd = False
+    parameters = ELASTIC_KEYS
+    mode: ClassVar[int] = OB_SPD
+    rescale_state: ClassVar[bool] = False
+
+    def __init__(self, spec, dim: int):
+        super().__init__(spec, dim)
+        q = self.params
+        if q["mu"] is not None:
+            self.mu, self.lam = q["mu"], q["lambda"]
+        else:
+            self.mu, self.lam = lame(q["E"], q["nu"])
+        self.viscosity = q["viscosity"]
+        self.eye = EYE[dim]
+        self.inv_wi, self.sigma_y, self.inv_h, self.eta = 0.0, 0.0, 1.0, 1.0
+        # Per instance: the fe updates add their own fields.
+        self.fields = {"b": FieldSpec(TENSOR, "f8", "identity"), "J": FieldSpec(SCALAR, "f8", 1.0)}
+        self.failures: list[str] = []
+
+    @classmethod
+    def parameter_problems(cls, params: dict[str, Any]) -> list[str]:
+        """The schema check plus "mu and lambda, or E and nu" (one pair, both keys)."""
+        problems = check_params(cls.parameters, params)
+        lame_pair = [k for k in ("mu", "lambda") if k in params]
+        young_pair = [k for k in ("E", "nu") if k in params]
+        if lame_pair and young_pair:
+            problems.append(f"{young_pair[0]}: give mu and lambda, or E and nu, not both")
+        elif not lame_pair and not young_pair:
+            problems.append("mu: missing (give mu and lambda, or E and nu)")
+        else:
+            pair = ("mu", "lambda") if lame_pair else ("E", "nu")
+            for k in pair:
+                if k not in params:
+                    problems.append(f"{k}: missing (given with {pair[0] if k == pair[1] else pair[1]})")
+            if lame_pair == ["mu", "lambda"] and not problems and \
+                    float(params["mu"]) == 0.0 and float(params["lambda"]) == 0.0:
+                problems.append("lambda: mu and lambda are both 0: the material resists nothing")
+        return problems
+
+    # -- state ------------------------------------------------------------------------------
+    def _state(self, fields):
+        b = fields["b"]
+        Fe = fields.get("Fe", b)  # the kernels read Fe, Fe_prev in the fe modes only
+        return b, fields["J"], Fe, fields.get("Fe_prev", Fe)
+
+    def _plastic_args(self):
+        return self.inv_wi, self.sigma_y, self.inv_h, self.eta
+
+    def update_state(self, fields, dt: float) -> None:
+        """Advances b, J (and Fe, Fe_prev) over dt with the step's fields["L"] (n, d, d). A
+        particle whose J, det b_hat or tr b_hat is not positive gets J = NaN and a line in
+        ``self.failures``."""
+        b, J, Fe, Fe_prev = self._state(fields)
+        bad, first, fJ, fh, ft = update_state(self.eye, self.mode, b, J, Fe, Fe_prev,
+                                              fields["L"], dt, *self._plastic_args(),
+                                              self.rescale_state)
+        if bad:
+            pid = int(fields["id"][first]) if "id" in fields else first
+            more = f" ({bad - 1} more particles)" if bad > 1 else ""
+            self.failures.append(
+                f"material {self.spec.name!r} ({self.name}): particle id {pid}: inadmissible "
+                f"elastic strain after the step: J = {fJ:.6g}, det b_hat = {fh:.6g}, "
+                f"tr b_hat = {ft:.6g}{more}")
+
+    def update_stress(self, fields, dt: float) -> None:
+        """Writes fields["tau"] (n, d, d) = mu (b_E - I) + lam (J - 1) J I + 2 mu_N J sym(L)
+        from the state and the stored fields["L"] (not read when viscosity = 0)."""
+        b = fields["b"]
+        Lv = fields["L"] if self.viscosity != 0.0 else b
+        stress(self.eye, b, fields["J"], Lv, fields["tau"], self.mu, self.lam, self.viscosity)
+
+    def energy(self, fields) -> float:
+        """sum_p vol0_p psi(b_E,p, J_p) (000 eq. 5.8)."""
+        return float(energy(self.eye, fields["b"], fields["J"], fields["vol0"], self.mu,
+                            self.lam))
+
+    def elastic_strain(self, fields) -> np.ndarray:
+        """b_E = (J^2/det b)^(1/d) b per particle (n, d, d): the strain of the stress."""
+        bE = np.empty_like(fields["b"])
+        elastic_strain(self.eye, fields["b"], fields["J"], bE)
+        return bE
+
+    # -- semi-implicit hooks (HELPERS item 3) ---------------------------------------------------
+    def _implicit_args(self, fields):
+        b, J, Fe, Fe_prev = self._state(fields)
+        return (self.eye, self.mode, b, J, Fe, Fe_prev, fields["vol0"])
+
+    def _moduli(self):
+        return (self.mu, self.lam, self.viscosity) + self._plastic_args()
+
+    def implicit_energy(self, fields, L, dt: float) -> float:
+        """sum_p e_p(L_p), e_p = V0 psi(b_E(L), J(L)) + dt V0 J^n mu_N sym(L):sym(L), with the
+        state at t^n in ``fields``; +inf when a J, det b_hat or tr b_hat is not positive."""
+        return float(implicit_energy(*self._implicit_args(fields), L, dt, *self._moduli()))
+
+    def implicit_gradient(self, fields, L, dt: float, G) -> None:
+        """Writes G (n, d, d), G_p = de_p/dL_p (energy x time; NaN where inadmissible)."""
+        implicit_gradient(*self._implicit_args(fields), L, dt, *self._moduli(), G)
+
+    def implicit_hessian(self, fields, L, dt: float, dL, dG) -> None:
+        """Writes dG (n, d, d), dG_p = D^2 e_p(L_p)[dL_p]."""
+        implicit_hessian(*self._implicit_args(fields), L, dt, *self._moduli(), dL, dG)
