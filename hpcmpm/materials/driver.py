@@ -32,6 +32,7 @@ class DriverResult:
     tau: np.ndarray
     J: np.ndarray
     fields: dict
+    history: dict  # name -> (steps + 1, count, ...) for each field named in ``record``
 
     def sigma(self) -> np.ndarray:
         """Cauchy stress tau / J."""
@@ -75,21 +76,27 @@ def step(material, fields: dict, L: np.ndarray, dt: float) -> None:
 
 
 def drive(material, velocity_gradient: Callable[[float], np.ndarray], dt: float, steps: int,
-          count: int = 1, state: dict | None = None) -> DriverResult:
+          count: int = 1, state: dict | None = None, record: tuple = ()) -> DriverResult:
     """Integrate ``count`` points of ``material`` over ``steps`` steps of ``dt``; step n (from
     t_n to t_n+1) uses L = velocity_gradient(t_n+1), the end-of-step (backward Euler) value the
     semi-implicit integrator also uses. Raises FloatingPointError when the material reports
-    an inadmissible state (its ``failures``)."""
+    an inadmissible state (its ``failures``). ``record`` names state fields (e.g. "b") whose
+    histories to keep."""
     fields = initial_fields(material, count, state)
     d = material.dim
     tau = np.empty((steps + 1, count, d, d))
     J = np.empty((steps + 1, count))
+    history = {name: np.empty((steps + 1,) + fields[name].shape) for name in record}
     material.update_stress(fields, dt)
     tau[0], J[0] = fields["tau"], fields["J"]
+    for name in record:
+        history[name][0] = fields[name]
     failures = getattr(material, "failures", None)
     for n in range(steps):
         step(material, fields, velocity_gradient((n + 1) * dt), dt)
         if failures:
             raise FloatingPointError(f"step {n + 1}, t = {(n + 1) * dt:g}: {failures[-1]}")
         tau[n + 1], J[n + 1] = fields["tau"], fields["J"]
-    return DriverResult(np.arange(steps + 1) * dt, tau, J, fields)
+        for name in record:
+            history[name][n + 1] = fields[name]
+    return DriverResult(np.arange(steps + 1) * dt, tau, J, fields, history)
