@@ -196,3 +196,23 @@ def test_von_mises_shear_plateau(dim):
     # (measured 3e-5).
     assert tau[-1] == pytest.approx(mat.shear_yield_stress(), rel=5e-3)
     assert tau[-1] == pytest.approx(tau[-200], rel=1e-6)  # a plateau, not a transient
+
+
+@pytest.mark.parametrize("plasticity, limit", [("fe", 2.0), ("fe_bdf2", 4.0)])
+def test_relaxation_stability_limit(plasticity, limit):
+    """fe and fe_bdf2 relax explicitly, so they are only conditionally stable (the thesis
+    suspects fe_bdf2, §6.1.4). Linearising f' = (f^-T - f)/(2 Wi) at f = I: fe gives
+    e' = (1 - r) e, stable for r = dt/Wi < 2; fe_bdf2 gives (3 + r) e'' = (4 - 2r) e' + (r - 1) e,
+    whose root crosses -1 at r = 4. Relaxing from the W = 1 steady-shear conformation for 3000
+    steps: 2 % below the limit b reaches I to round-off, 2 % above it the period-2 mode has
+    grown into a large oscillation that never settles (nonlinear run = linear theory). ob_spd
+    has no limit (test_b_stays_spd_at_large_steps)."""
+    def deviation(ratio):
+        """max |b - I| over the last 100 steps."""
+        L, A0, _, _ = flow("relaxation", 2, 1.0)
+        res = drive(oldroyd_b(2, plasticity, viscosity=0.0), lambda t: L, ratio * WI, 3000,
+                    state={"b": A0, "Fe": np.linalg.cholesky(A0)}, record=("b",))
+        return np.abs(res.history["b"][-100:, 0] - np.eye(2)).max()
+    initial = 2.0  # |A0 - I| max = 2 W^2
+    assert deviation(0.98 * limit) < 1e-12 * initial
+    assert deviation(1.02 * limit) > 5.0 * initial
