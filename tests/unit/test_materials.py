@@ -439,4 +439,11 @@ def test_ob_explicit_time_step_problem():
     problem = mat.time_step_problem(2e-3)
     assert problem.startswith("plasticity: ") and "0.002" in problem and "0.001" in problem
     spd = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1e-3}), 2)
-    assert spd.time_step_problem(1.0) is None
+    assert spd.time_step_problem(1.0) is None and spd.integrator_problem("semi_implicit") is None
+    for plasticity in ("fe", "fe_bdf2"):  # explicit relaxation: measured limits 1.25-4 Wi
+        fe = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1e-3,
+                                              "plasticity": plasticity}), 3)
+        assert fe.time_step_problem(1e-3) is None
+        assert fe.time_step_problem(2e-3).startswith(f"plasticity: '{plasticity}' needs dt")
+    assert fe.integrator_problem("explicit") is None
+    assert "explicit integrator only" in fe.integrator_problem("semi_implicit")
