@@ -364,6 +364,9 @@ class LeftCauchyGreenMaterial(Material):
     deformation: ClassVar[str] = "L"
     uses_svd = False
     parameters = ELASTIC_KEYS
+    # The fields every instance has; an instance's own ``fields`` adds Fe (and Fe_prev) for the
+    # fe updates, so the engine must read an instance's.
+    fields = {"b": FieldSpec(TENSOR, "f8", "identity"), "J": FieldSpec(SCALAR, "f8", 1.0)}
     mode: ClassVar[int] = OB_SPD
     rescale_state: ClassVar[bool] = False
 
@@ -378,7 +381,7 @@ class LeftCauchyGreenMaterial(Material):
         self.eye = EYE[dim]
         self.inv_wi, self.sigma_y, self.inv_h, self.eta = 0.0, 0.0, 1.0, 1.0
         # Per instance: the fe updates add their own fields.
-        self.fields = {"b": FieldSpec(TENSOR, "f8", "identity"), "J": FieldSpec(SCALAR, "f8", 1.0)}
+        self.fields = dict(type(self).fields)
         self.failures: list[str] = []
 
     @classmethod
