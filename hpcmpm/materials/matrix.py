@@ -47,7 +47,7 @@ ddot, eye_like, add_identity, sym, dim_of, root_d = map(
     _stub, ("ddot", "eye_like", "add_identity", "sym", "dim_of", "root_d"))
 
 
-@overload(load, inline="always")
+@overload(load)
 def _load(A, p, like):
     """A[p] of an (n, d, d) array as a tuple; ``like`` (EYE2/EYE3) fixes d."""
     if _size(like) == 4:
@@ -56,7 +56,7 @@ def _load(A, p, like):
         return lambda A, p, like: load3(A, p)
 
 
-@overload(store, inline="always")
+@overload(store)
 def _store(A, p, a):
     """A[p] = a."""
     if _size(a) == 4:
@@ -65,7 +65,7 @@ def _store(A, p, a):
         return lambda A, p, a: store3(A, p, a)
 
 
-@overload(dim_of, inline="always")
+@overload(dim_of)
 def _dim_of(a):
     """The dimension d as a float (2.0 or 3.0)."""
     if _size(a) == 4:
@@ -74,7 +74,7 @@ def _dim_of(a):
         return lambda a: 3.0
 
 
-@overload(root_d, inline="always")
+@overload(root_d)
 def _root_d(a, x):
     """x^(1/d) for the dimension of a."""
     if _size(a) == 4:
@@ -83,7 +83,7 @@ def _root_d(a, x):
         return lambda a, x: x ** (1.0 / 3.0)
 
 
-@overload(add, inline="always")
+@overload(add)
 def _add(a, b):
     """a + b."""
     if _size(a) == 4:
@@ -93,7 +93,7 @@ def _add(a, b):
                              a[5] + b[5], a[6] + b[6], a[7] + b[7], a[8] + b[8])
 
 
-@overload(sub, inline="always")
+@overload(sub)
 def _sub(a, b):
     """a - b."""
     if _size(a) == 4:
@@ -103,7 +103,7 @@ def _sub(a, b):
                              a[5] - b[5], a[6] - b[6], a[7] - b[7], a[8] - b[8])
 
 
-@overload(scale, inline="always")
+@overload(scale)
 def _scale(s, a):
     """s a for a scalar s."""
     if _size(a) == 4:
@@ -113,7 +113,7 @@ def _scale(s, a):
                              s * a[6], s * a[7], s * a[8])
 
 
-@overload(axpy, inline="always")
+@overload(axpy)
 def _axpy(s, a, b):
     """s a + b."""
     if _size(a) == 4:
@@ -143,7 +143,7 @@ def _mul_bt(a, b):
         return lambda a, b: mul3_bt(a, b)
 
 
-@overload(transpose, inline="always")
+@overload(transpose)
 def _transpose(a):
     """a^T."""
     if _size(a) == 4:
@@ -161,7 +161,7 @@ def _mul_at(a, b):
         return lambda a, b: mul3((a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8]), b)
 
 
-@overload(trace, inline="always")
+@overload(trace)
 def _trace(a):
     if _size(a) == 4:
         return lambda a: a[0] + a[3]
@@ -169,7 +169,7 @@ def _trace(a):
         return lambda a: a[0] + a[4] + a[8]
 
 
-@overload(det, inline="always")
+@overload(det)
 def _det(a):
     if _size(a) == 4:
         return lambda a: det2(a)
@@ -183,7 +183,7 @@ def _cof3(a):
             a[1] * a[5] - a[2] * a[4], a[2] * a[3] - a[0] * a[5], a[0] * a[4] - a[1] * a[3])
 
 
-@overload(cofactor, inline="always")
+@overload(cofactor)
 def _cofactor(a):
     """cof a = det(a) a^-T (defined for singular a too)."""
     if _size(a) == 4:
@@ -206,7 +206,7 @@ def _dcof3(a, h):
             h[0] * a[4] + a[0] * h[4] - h[1] * a[3] - a[1] * h[3])
 
 
-@overload(dcofactor, inline="always")
+@overload(dcofactor)
 def _dcofactor(a, h):
     """D cof(a)[h], the derivative of the cofactor matrix in direction h (2D: cof is linear)."""
     if _size(a) == 4:
@@ -232,7 +232,7 @@ def _inverse(a):
         return inv3
 
 
-@overload(ddot, inline="always")
+@overload(ddot)
 def _ddot(a, b):
     """a : b = sum_ij a_ij b_ij."""
     if _size(a) == 4:
@@ -243,7 +243,7 @@ def _ddot(a, b):
                              + a[8] * b[8])
 
 
-@overload(eye_like, inline="always")
+@overload(eye_like)
 def _eye_like(a):
     """The identity of a's size."""
     if _size(a) == 4:
@@ -252,7 +252,7 @@ def _eye_like(a):
         return lambda a: (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
 
-@overload(add_identity, inline="always")
+@overload(add_identity)
 def _add_identity(a, s):
     """a + s I."""
     if _size(a) == 4:
@@ -261,7 +261,7 @@ def _add_identity(a, s):
         return lambda a, s: (a[0] + s, a[1], a[2], a[3], a[4] + s, a[5], a[6], a[7], a[8] + s)
 
 
-@overload(sym, inline="always")
+@overload(sym)
 def _sym(a):
     """(a + a^T) / 2, exactly symmetric."""
     if _size(a) == 4:
