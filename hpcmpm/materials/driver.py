@@ -1,10 +1,10 @@
 """Homogeneous material-point driver: a few material points under a prescribed velocity
 gradient L(t), no grid.
 
-Each step does what the engine does to a particle after G2P in deformation mode "L": store the
-step's L in fields["L"], `update_state(fields, dt)`, then `update_stress(fields, dt)`; the
-stress history is recorded. A material in mode "F" (the round-1 elastic models) gets
-F <- (I + dt L) F here instead. For verification against closed forms (uniform flows: simple
+Each step does what the engine does to a particle in deformation mode "L": store the step's L
+in fields["L"], `update_state(fields, dt)` (a b_E model advances its own state; the base class
+advances F, or J, from L and applies the return map), then `update_stress(fields, dt)`; the
+stress history is recorded. For verification against closed forms (uniform flows: simple
 shear, extension, relaxation) and for convergence and stability studies of the plastic
 updates (tests/verification/test_viscoelastic_driver.py, scripts/).
 
@@ -44,9 +44,9 @@ def initial_fields(material, count: int = 1, state: dict | None = None) -> dict:
     from the material's declared fields and their fills; ``state`` overrides any of them
     (arrays broadcast to (count, ...))."""
     d = material.dim
-    specs = {"J": FieldSpec(SCALAR, "f8", 1.0), **getattr(material, "fields", {})}
-    if getattr(material, "deformation", "F") != "L" and not getattr(material, "volumetric", False):
-        specs["F"] = FieldSpec(TENSOR, "f8", "identity")
+    deformation = {"F": {"F": FieldSpec(TENSOR, "f8", "identity")},
+                   "J": {"J": FieldSpec(SCALAR, "f8", 1.0)}}.get(material.deformation, {})
+    specs = {**deformation, **material.fields}
     fields = {"x": np.zeros((count, d)), "v": np.zeros((count, d)), "mass": np.ones(count),
               "vol0": np.ones(count), "id": np.arange(count, dtype=np.int64),
               "L": np.zeros((count, d, d)), "tau": np.zeros((count, d, d))}
@@ -64,15 +64,13 @@ def initial_fields(material, count: int = 1, state: dict | None = None) -> dict:
 def step(material, fields: dict, L: np.ndarray, dt: float) -> None:
     """One homogeneous step with velocity gradient L ((d, d) or (count, d, d))."""
     fields["L"][:] = L
-    if getattr(material, "deformation", "F") == "L":
-        material.update_state(fields, dt)
-    else:
-        if "F" in fields:
-            fields["F"][:] = (np.eye(material.dim) + dt * fields["L"]) @ fields["F"]
-        fields["J"] *= np.linalg.det(np.eye(material.dim) + dt * fields["L"])
-        if hasattr(material, "update_state"):
-            material.update_state(fields, dt)
+    material.update_state(fields, dt)
     material.update_stress(fields, dt)
+
+
+def volume_ratio(fields: dict) -> np.ndarray:
+    """J per point: the stored J, or det F."""
+    return fields["J"] if "J" in fields else np.linalg.det(fields["F"])
 
 
 def drive(material, velocity_gradient: Callable[[float], np.ndarray], dt: float, steps: int,
@@ -88,7 +86,7 @@ def drive(material, velocity_gradient: Callable[[float], np.ndarray], dt: float,
     J = np.empty((steps + 1, count))
     history = {name: np.empty((steps + 1,) + fields[name].shape) for name in record}
     material.update_stress(fields, dt)
-    tau[0], J[0] = fields["tau"], fields["J"]
+    tau[0], J[0] = fields["tau"], volume_ratio(fields)
     for name in record:
         history[name][0] = fields[name]
     failures = getattr(material, "failures", None)
@@ -96,7 +94,7 @@ def drive(material, velocity_gradient: Callable[[float], np.ndarray], dt: float,
         step(material, fields, velocity_gradient((n + 1) * dt), dt)
         if failures:
             raise FloatingPointError(f"step {n + 1}, t = {(n + 1) * dt:g}: {failures[-1]}")
-        tau[n + 1], J[n + 1] = fields["tau"], fields["J"]
+        tau[n + 1], J[n + 1] = fields["tau"], volume_ratio(fields)
         for name in record:
             history[name][n + 1] = fields[name]
     return DriverResult(np.arange(steps + 1) * dt, tau, J, fields, history)

@@ -102,6 +102,5 @@ class FixedCorotated(ImplicitF, ElasticMaterial):
 
     name = "fixed_corotated"
     implicit_model = COROTATED
-    uses_svd = False  # a polar decomposition, not the SVD clamp of snow
     stress_kernels = {2: _stress_2d, 3: _stress_3d}
     energy_kernels = {2: _energy_2d, 3: _energy_3d}

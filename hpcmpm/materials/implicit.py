@@ -249,6 +249,7 @@ class ImplicitF:
     integer code ``implicit_model`` and `implicit_moduli`. ``fields["F"]`` must hold F^n (the
     state at t^n: call these before update_state advances it)."""
 
+    implicit = True
     implicit_model: int = LINEAR
 
     def implicit_moduli(self, fields) -> tuple:

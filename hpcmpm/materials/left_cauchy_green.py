@@ -65,6 +65,7 @@ import numpy as np
 from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
+from ..errors import SceneError
 from .base import POISSON, YOUNG, Material, Param, check_params, lame
 from .matrix import (EYE, add, add_identity, axpy, ddot, det, dim_of, inverse, load, mul,
                      mul_bt, root_d, scale, store, sub, sym, trace, transpose)
@@ -362,7 +363,7 @@ class LeftCauchyGreenMaterial(Material):
     """
 
     deformation: ClassVar[str] = "L"
-    uses_svd = False
+    implicit: ClassVar[bool] = True
     parameters = ELASTIC_KEYS
     # The fields every instance has; an instance's own ``fields`` adds Fe (and Fe_prev) for the
     # fe updates, so the engine must read an instance's.
@@ -382,7 +383,6 @@ class LeftCauchyGreenMaterial(Material):
         self.inv_wi, self.sigma_y, self.inv_h, self.eta = 0.0, 0.0, 1.0, 1.0
         # Per instance: the fe updates add their own fields.
         self.fields = dict(type(self).fields)
-        self.failures: list[str] = []
 
     @classmethod
     def parameter_problems(cls, params: dict[str, Any]) -> list[str]:
@@ -403,6 +403,40 @@ class LeftCauchyGreenMaterial(Material):
                     float(params["mu"]) == 0.0 and float(params["lambda"]) == 0.0:
                 problems.append("lambda: mu and lambda are both 0: the material resists nothing")
         return problems
+
+    def dt_limit(self, dx: float) -> float:
+        """Explicit viscous limit rho dx^2 / (2 d mu_N) (unbounded without viscosity)."""
+        if self.viscosity == 0.0:
+            return math.inf
+        return self.density * dx * dx / (2.0 * self.dim * self.viscosity)
+
+    def largest_time_step(self, scene) -> float:
+        """An upper bound of the scene's time step: its fixed dt, else its max_dt and, for the
+        explicit integrator, this material's own CFL and viscous bounds (the scene's dt is
+        below both); inf for the semi-implicit integrator without max_dt (advection bound)."""
+        if scene.dt is not None:
+            return scene.dt
+        bound = scene.max_dt if scene.max_dt is not None else math.inf
+        if getattr(scene, "integrator", "explicit") == "explicit":
+            c = self.wave_speed()
+            if c > 0.0:
+                bound = min(bound, scene.cfl * scene.dx / c)
+            bound = min(bound, self.dt_limit(scene.dx))
+        return bound
+
+    def scene_problems(self, scene) -> list[str]:
+        """Problems ("key: what is wrong") of this material in ``scene`` (none here; Oldroyd-B
+        checks its relaxation update against the time step and the integrator)."""
+        return []
+
+    def configure(self, scene) -> None:
+        """Raises SceneError, one line per problem as "{file}: materials[i].key: ...", when
+        this material cannot run in ``scene`` (`scene_problems`)."""
+        problems = self.scene_problems(scene)
+        if problems:
+            where = f"materials[{scene.material_index(self.spec.name)}]"
+            prefix = f"{scene.path}: " if getattr(scene, "path", None) else ""
+            raise SceneError([f"{prefix}{where}.{p}" for p in problems])
 
     # -- state ------------------------------------------------------------------------------
     def _state(self, fields):

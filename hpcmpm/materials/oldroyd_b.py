@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-from .base import Param
+from .base import Param, choice
 from .left_cauchy_green import (ELASTIC_KEYS, FE, FE_BDF2, OB_EXPLICIT, OB_SPD,
                                 PLASTICITY_MODES, LeftCauchyGreenMaterial)
 from ..state import TENSOR, FieldSpec
@@ -45,11 +45,10 @@ class OldroydB(LeftCauchyGreenMaterial):
         "relaxation_time": Param(0.0, math.inf, high_inclusive=True,
                                  doc="relaxation (Weissenberg) time Wi (time units); inf: no "
                                      "relaxation, a hyperelastic solid"),
-        "plasticity": Param(-math.inf, math.inf, required=False, default="ob_spd",
-                            choices=tuple(PLASTICITY_MODES),
-                            doc="relaxation update: ob_spd (default, SPD for every dt), "
-                                "ob_explicit (eq. 5.14, needs dt <= relaxation_time), fe, "
-                                "fe_bdf2"),
+        "plasticity": choice(tuple(PLASTICITY_MODES), "ob_spd",
+                             doc="relaxation update: ob_spd (default, SPD for every dt), "
+                                 "ob_explicit (eq. 5.14, needs dt <= relaxation_time), fe, "
+                                 "fe_bdf2"),
     }
 
     def __init__(self, spec, dim: int):
@@ -78,6 +77,12 @@ class OldroydB(LeftCauchyGreenMaterial):
                 f"time step can reach {max_dt:g} > relaxation_time = "
                 f"{self.relaxation_time:g}; use plasticity = 'ob_spd' or set "
                 f"simulation.max_dt <= {self.relaxation_time:g}")
+
+    def scene_problems(self, scene) -> list[str]:
+        """The integrator and time-step bounds of the relaxation update."""
+        problems = [self.integrator_problem(getattr(scene, "integrator", "explicit")),
+                    self.time_step_problem(self.largest_time_step(scene))]
+        return [p for p in problems if p]
 
     def integrator_problem(self, integrator: str) -> str | None:
         """The problem, as "key: what is wrong", when this update cannot run under
