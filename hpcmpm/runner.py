@@ -254,7 +254,8 @@ def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
 
 def make_domain(scene, comm: Communicator | None = None) -> Domain:
     return Domain(scene.dim, scene.dx, scene.domain_lo, scene.domain_hi,
-                  comm=None if comm is None else comm.comm)
+                  comm=None if comm is None else comm.comm,
+                  periodic=getattr(scene, "periodic", ()))
 
 
 def initial_particles(sim: Simulation) -> None:

@@ -8,11 +8,13 @@ F_hat = (I + dt L) F^n, e(L) = V0 psi(F_hat), de/dL = dt V0 P(F_hat) F^n^T,
 D^2 e[dL] = dt^2 V0 dP(F_hat)[dL F^n] F^n^T with
 dP[dF] = mu dF + (mu - lam ln J) F^-T dF^T F^-T + lam tr(F^-1 dF) F^-T.
 
-Importing this module registers it as ``type = "test_neo_hookean"``.
+`registered()` adds it to the material registry as ``type = "test_neo_hookean"`` for the
+duration of a ``with`` block (a module-level fixture in the tests), so no other test sees it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -83,4 +85,11 @@ class NeoHookeanForTests(Material):
         dG[:] = dt * fields["vol0"][:, None, None] * dP @ Fn.transpose(0, 2, 1)
 
 
-MATERIALS.setdefault(NeoHookeanForTests.name, NeoHookeanForTests)
+@contextlib.contextmanager
+def registered():
+    """The test material in `MATERIALS` inside the block only."""
+    MATERIALS[NeoHookeanForTests.name] = NeoHookeanForTests
+    try:
+        yield NeoHookeanForTests
+    finally:
+        MATERIALS.pop(NeoHookeanForTests.name, None)

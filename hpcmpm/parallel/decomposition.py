@@ -1,7 +1,8 @@
 """Recursive coordinate bisection (RCB) of the cell index space, and the owner lookup.
 
 A rank owns a box of cells ``[lo, hi)`` (global indices, ARCHITECTURE.md); the boxes tile the
-whole index space, the outermost faces sitting at ``+-BIG``. The bisection is computed from
+whole index space, the outermost faces sitting at ``+-BIG`` (at ``0`` and ``n_cells`` on a
+periodic axis, whose positions are wrapped into the domain). The bisection is computed from
 global histograms only, so every rank derives the same boxes from the same reductions.
 """
 
@@ -165,6 +166,35 @@ def points_in_boxes(x, lo, hi):
     return counts, index
 
 
+@njit(cache=True)
+def wrap_periodic(x, domain_lo, inv_dx, dx, period):
+    """Wrap positions into the domain along the periodic axes, in place:
+    ``x <- lo + (x - lo) mod L`` with ``L = period * dx`` (``period[a] = 0``: axis a is not
+    periodic). Positions already inside (most of them) are only compared; non-finite ones are
+    left for the instability guard. Returns the number of coordinates wrapped.
+
+    ``(x - lo) mod L`` can round up to ``L`` (a coordinate a hair below ``lo``); the image of
+    the upper face is the lower one, so such a coordinate becomes ``lo``. The test uses the
+    cell expression of the transfer kernels, so a wrapped particle's cell is in [0, period)."""
+    n, dim = x.shape
+    wrapped = 0
+    for p in range(n):
+        for a in range(dim):
+            m = period[a]
+            if m == 0:
+                continue
+            xi = (x[p, a] - domain_lo[a]) * inv_dx
+            if (xi >= 0.0 and xi < m) or not math.isfinite(xi):
+                continue
+            y = domain_lo[a] + (x[p, a] - domain_lo[a]) % (m * dx)
+            xi = (y - domain_lo[a]) * inv_dx
+            if not (xi >= 0.0 and xi < m):
+                y = domain_lo[a]
+            x[p, a] = y
+            wrapped += 1
+    return wrapped
+
+
 def _choose_cut(hist: np.ndarray, first: int, n_left: int, n_ranks: int) -> int:
     """Cell index ``c`` that puts the weighted ``n_left/n_ranks`` quantile of ``hist`` (counts
     of cells ``first, first+1, ...``) below it; both sides keep at least one cell column."""
@@ -192,7 +222,8 @@ def _empty_cut(lo: np.ndarray, hi: np.ndarray, n_cells: np.ndarray, n_left: int,
 
 def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
                         reduce_max: Callable[[np.ndarray], np.ndarray],
-                        reduce_sum: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+                        reduce_sum: Callable[[np.ndarray], np.ndarray],
+                        periodic=None) -> np.ndarray:
     """Boxes of cells, one per rank, by recursive coordinate bisection weighted by particles.
 
     The rank range of a box is split in two (``floor``/``ceil`` halves); the box is cut along
@@ -203,17 +234,22 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
 
     cells : (n, dim) int64 cells of this rank's particles.
     reduce_max, reduce_sum : elementwise reductions of int64 arrays over all ranks.
+    periodic : (dim,) bool, axes whose cells wrap: there the boxes tile ``[0, n_cells)``
+        exactly (no particle lies outside once positions are wrapped), elsewhere the outermost
+        faces sit at ``+-BIG``.
     Returns boxes (size, 2, dim) int64, ``boxes[r] = [lo, hi)``.
     """
     dim = cells.shape[1]
     n_cells = np.asarray(n_cells, dtype=np.int64)
+    periodic = np.zeros(dim, bool) if periodic is None else np.asarray(periodic, bool)
     # Cells beyond the domain are clamped for the histograms only: every cut lies inside
     # [0, n_cells], so a clamped cell falls on the same side of it as the true one.
     if len(cells) and (cells.min() < -1 or np.any(cells.max(axis=0) > n_cells)):
         cells = np.clip(cells, -1, n_cells)  # a copy only when some particle is outside
     boxes = np.empty((size, 2, dim), dtype=np.int64)
     # Tree nodes of the current level: (first rank, end rank, lo, hi, particle index).
-    level = [(0, size, np.full(dim, -BIG, np.int64), np.full(dim, BIG, np.int64),
+    level = [(0, size, np.where(periodic, 0, -BIG).astype(np.int64),
+              np.where(periodic, n_cells, BIG).astype(np.int64),
               np.arange(len(cells)))]
     while level:
         for r0, r1, lo, hi, _ in level:

@@ -11,6 +11,7 @@ so a rank's support box is ``[min cell - 1, max cell + 3)``.
 
 from __future__ import annotations
 
+import itertools
 import sys
 from dataclasses import dataclass, field
 
@@ -19,10 +20,11 @@ from mpi4py import MPI
 
 from .comm import Communicator
 from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers, owner_ranks,
-                            particle_cells, points_in_boxes, recursive_bisection)
+                            particle_cells, points_in_boxes, recursive_bisection,
+                            wrap_periodic)
 from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
-                       pack_region, pack_rows, region_size, region_slices, row_dtype,
-                       unpack_region, unpack_rows)
+                       pack_regions, pack_rows, region_slices, regions_size, row_dtype, unpack_regions,
+                       unpack_rows)
 
 # Kernel support around a particle's cell, in nodes: 1 below, 2 above (quadratic and cubic).
 GHOST_BELOW, GHOST_ABOVE = 1, 2
@@ -33,9 +35,13 @@ class GridPlan:
     """Who exchanges which node boxes this step; recomputed only when the gathered support
     boxes or the decomposition change.
 
-    ``to_owners[k] = (r, lo, hi)``: nodes of rank ``r``'s owned box that my particles touch
-    (I send my partial sums there; ``fill_ghosts`` receives the owner's values there).
-    ``from_touchers[k] = (r, lo, hi)``: my owned nodes that rank ``r``'s particles touch.
+    ``to_owners[k] = (r, [(lo, hi), ...])``: boxes of my block (global node indices, as my
+    block holds them) that are nodes of rank ``r``'s owned box, directly or through a periodic
+    image (I send my partial sums there; ``fill_ghosts`` receives the owner's values there).
+    ``from_touchers[k] = (r, [(lo, hi), ...])``: my owned nodes that rank ``r``'s particles
+    touch, in the same order as ``r`` lists the matching boxes. Both lists are in rank order
+    and each rank's boxes in the order of `Domain.shifts`; ``r`` may be this rank itself when
+    a periodic axis wraps its support onto its own owned nodes (copied, not sent).
     """
 
     key: bytes
@@ -54,9 +60,12 @@ class Domain(Communicator):
     dx : grid spacing.
     domain_lo, domain_hi : corners of the domain box (dim,).
     comm : an mpi4py communicator or a `Communicator` (``COMM_WORLD`` by default).
+    periodic : indices of the periodic axes (``Scene.periodic``). Along such an axis of
+        ``n`` cells, node ``i`` is node ``i mod n``, the rank boxes tile ``[0, n)`` and
+        `migrate` wraps positions into the domain.
     """
 
-    def __init__(self, dim: int, dx: float, domain_lo, domain_hi, comm=None):
+    def __init__(self, dim: int, dx: float, domain_lo, domain_hi, comm=None, periodic=()):
         super().__init__(comm.comm if isinstance(comm, Communicator) else comm)
         self.dim = int(dim)
         self.dx = float(dx)
@@ -64,19 +73,29 @@ class Domain(Communicator):
         self.domain_lo = np.asarray(domain_lo, dtype=np.float64).reshape(self.dim)
         self.domain_hi = np.asarray(domain_hi, dtype=np.float64).reshape(self.dim)
         self.n_cells = np.round((self.domain_hi - self.domain_lo) / self.dx).astype(np.int64)
+        self.periodic = np.zeros(self.dim, dtype=bool)
+        self.periodic[list(periodic)] = True
+        # Period in cells per axis, 0 where the axis is not periodic (the wrap kernel's input).
+        self.period = np.where(self.periodic, self.n_cells, 0).astype(np.int64)
+        # Image offsets in cells: every combination of -1, 0, +1 periods over the periodic
+        # axes, zero first. Supports and halos never reach past one period (a wrapped
+        # particle's support is nodes -1 .. n + 1), so these images are all there are.
+        steps = [(0, -1, 1) if p else (0,) for p in self.periodic]
+        self.shifts = np.array(list(itertools.product(*steps)), dtype=np.int64) * self.period
         self._plan: GridPlan | None = None
         # Until the first `decompose`, split the domain evenly (no particles: purely local).
         empty = np.empty((0, self.dim), dtype=np.int64)
         self.set_boxes(recursive_bisection(empty, self.size, self.n_cells,
-                                           lambda a: a, lambda a: a))
+                                           lambda a: a, lambda a: a, self.periodic))
 
     # -- decomposition ------------------------------------------------------------------------
     def decompose(self, particles) -> None:
         """Recursive coordinate bisection of the cells weighted by the particles on all ranks,
         then migrate every particle to its owner. Collective and deterministic."""
+        self.wrap(particles["x"])
         cells = particle_cells(particles["x"], self.domain_lo, self.inv_dx)
         boxes = recursive_bisection(cells, self.size, self.n_cells,
-                                    self._reduce_max, self._reduce_sum)
+                                    self._reduce_max, self._reduce_sum, self.periodic)
         self.set_boxes(boxes)
         self.migrate(particles)
 
@@ -97,11 +116,20 @@ class Domain(Communicator):
     def owned_hi(self) -> np.ndarray:
         return self.boxes[self.rank, 1]
 
+    def wrap(self, x: np.ndarray) -> int:
+        """Wrap positions x (n, dim) into the domain along the periodic axes, in place
+        (``x <- lo + (x - lo) mod L``); returns how many coordinates moved. Nothing to do
+        (and no pass over x) without periodic axes."""
+        if not self.periodic.any() or not len(x):
+            return 0
+        return int(wrap_periodic(x, self.domain_lo, self.inv_dx, self.dx, self.period))
+
     def owners(self, x: np.ndarray) -> np.ndarray:
-        """Owning rank of each position x (n, dim)."""
+        """Owning rank of each position x (n, dim) (of its periodic image in the domain)."""
         out = np.empty(len(x), dtype=np.int64)
-        return owner_ranks(np.ascontiguousarray(x, dtype=np.float64), self.domain_lo,
-                           self.inv_dx, self.boxes, self.rank, out)
+        x = np.array(x, dtype=np.float64)  # a copy: wrapping must not move the caller's x
+        self.wrap(x)
+        return owner_ranks(x, self.domain_lo, self.inv_dx, self.boxes, self.rank, out)
 
     def _reduce_max(self, a: np.ndarray) -> np.ndarray:
         out = np.empty_like(a)
@@ -116,7 +144,12 @@ class Domain(Communicator):
     # -- particles ----------------------------------------------------------------------------
     def migrate(self, particles) -> int:
         """Send every field of every particle whose owner changed to its owner (any rank, not
-        just face neighbours); received particles are appended. Returns the number sent."""
+        just face neighbours); received particles are appended. Returns the number sent.
+
+        Positions are wrapped into the domain along the periodic axes first (G2P moved them
+        freely): this is the one place a step does it, so P2G, the owner lookup, frames and
+        checkpoints all see wrapped positions."""
+        self.wrap(particles["x"])
         if self.size == 1:
             return 0
         # Room for every particle, but only the leavers' entries are written (untouched
@@ -148,25 +181,42 @@ class Domain(Communicator):
         """Read-only copies of other ranks' particles within ``r`` of my owned region (its box in
         physical coordinates, expanded by ``r``), for the fields ``names``.
 
-        Neighbours are the ranks whose expanded box meets mine; the test is symmetric, so both
-        sides agree on who talks to whom and the counts go point-to-point too."""
+        Across a periodic face a copy is the particle's image: its ``x`` (when asked for) is
+        shifted by the period, so the receiver sees it where it acts; a rank receives images of
+        its own particles too when its box is within ``r`` of itself across the face. ``r``
+        must stay below every period. The neighbour test (box gap ``<= r``, per image) is
+        symmetric, so both sides agree on who talks to whom and the counts go point-to-point
+        too. Rows arrive grouped by source rank, each source's images in `shifts` order."""
         names = list(names)
+        length = self.period * self.dx
+        if np.any(self.periodic & (r >= length)):
+            raise ValueError(f"particle halo reach {r} must be below the period "
+                             f"{length[self.periodic].min()} of every periodic axis")
         arrays = {name: particles[name] for name in names}
         lo = self.domain_lo + self.boxes[:, 0].astype(np.float64) * self.dx
         hi = self.domain_lo + self.boxes[:, 1].astype(np.float64) * self.dx
         me = self.rank
-        gap = np.maximum(lo - hi[me], lo[me] - hi).max(axis=1)
-        neighbours = np.array([q for q in np.flatnonzero(gap <= r) if q != me], dtype=np.int64)
-        counts, index = points_in_boxes(particles["x"], lo[neighbours] - r, hi[neighbours] + r)
-        send_counts = np.zeros(self.size, dtype=np.int64)
-        send_counts[neighbours] = counts
+        shifts = self.shifts * self.dx  # physical image offsets
+        # (q, s): rank q sees my particles at x + shifts[s]; those lie in its expanded box.
+        pairs = [(q, s) for q in range(self.size) for s in range(len(shifts))
+                 if (q != me or s) and np.max(np.maximum(lo[q] - shifts[s] - hi[me],
+                                                         lo[me] - hi[q] + shifts[s])) <= r]
+        q_of = np.array([q for q, _ in pairs], dtype=np.int64)
+        offset = np.array([shifts[s] for _, s in pairs]).reshape(len(pairs), self.dim)
+        counts, index = points_in_boxes(particles["x"], lo[q_of] - offset - r,
+                                        hi[q_of] - offset + r)
+        neighbours = np.unique(q_of[q_of != me])
+        send_counts = np.bincount(q_of, weights=counts, minlength=self.size).astype(np.int64)
         recv_counts = np.zeros(self.size, dtype=np.int64)
+        recv_counts[me] = send_counts[me]
         requests = [self.comm.Irecv(recv_counts[q:q + 1], source=int(q), tag=TAG_HALO_COUNT)
                     for q in neighbours]
         requests += [self.comm.Isend(send_counts[q:q + 1], dest=int(q), tag=TAG_HALO_COUNT)
                      for q in neighbours]
         MPI.Request.Waitall(requests)
         send = pack_rows(arrays, index, row_dtype(arrays))
+        if "x" in arrays and self.periodic.any():
+            send["x"] += np.repeat(offset, counts, axis=0)
         recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_HALO)
         return {name: np.ascontiguousarray(a) for name, a in unpack_rows(recv).items()}
 
@@ -206,6 +256,10 @@ class Domain(Communicator):
         return self._plan.block_lo.copy(), self._plan.block_hi.copy()
 
     def _grid_plan(self, supports: np.ndarray, key: bytes) -> GridPlan:
+        """Exchange regions from the support boxes: for each rank ``r`` and image shift ``s``
+        (zero only when no axis is periodic), ``support(me) & (owned(r) + s)`` are my partial
+        sums of ``r``'s nodes (``r`` adds them at ``- s``) and ``(support(r) - s) & owned(me)``
+        my owned nodes that ``r``'s particles touch through that image."""
         me = self.rank
         own_lo, own_hi = self.boxes[me]
         to_owners, from_touchers = [], []
@@ -213,15 +267,21 @@ class Domain(Communicator):
         if not is_empty(*supports[me]):
             parts.append(supports[me])
         for r in range(self.size):
-            if r == me:
-                continue
-            lo, hi = intersect(*supports[me], *self.boxes[r])
-            if not is_empty(lo, hi):
-                to_owners.append((r, lo, hi))
-            lo, hi = intersect(*supports[r], own_lo, own_hi)
-            if not is_empty(lo, hi):
-                from_touchers.append((r, lo, hi))
-                parts.append((lo, hi))
+            sends, recvs = [], []
+            for s in self.shifts:
+                if r == me and not s.any():
+                    continue
+                lo, hi = intersect(*supports[me], *(self.boxes[r] + s))
+                if not is_empty(lo, hi):
+                    sends.append((lo, hi))
+                lo, hi = intersect(*(supports[r] - s), own_lo, own_hi)
+                if not is_empty(lo, hi):
+                    recvs.append((lo, hi))
+                    parts.append((lo, hi))
+            if sends:
+                to_owners.append((r, sends))
+            if recvs:
+                from_touchers.append((r, recvs))
         if parts:
             block_lo = np.min([p[0] for p in parts], axis=0)
             block_hi = np.max([p[1] for p in parts], axis=0)
@@ -235,21 +295,29 @@ class Domain(Communicator):
         return self._plan
 
     def _exchange_regions(self, grid, names, sends, recvs, tag: int, add: bool) -> None:
+        """One message per neighbour holding all its regions; a rank's regions on itself (a
+        periodic image of its own nodes) are copied, not sent. Everything is packed before
+        anything is unpacked, so a self copy reads the values from before the exchange."""
         fields = [grid[name] for name in names]
-        requests, received = [], []
-        for r, lo, hi in recvs:
-            slices = region_slices(lo, hi, grid.origin, grid.shape)
-            buf = np.empty(region_size(fields, slices), dtype=np.float64)
-            requests.append(self.comm.Irecv(buf, source=r, tag=tag))
-            received.append((slices, buf))
-        for r, lo, hi in sends:
-            slices = region_slices(lo, hi, grid.origin, grid.shape)
-            buf = np.empty(region_size(fields, slices), dtype=np.float64)
-            pack_region(fields, slices, buf)
-            requests.append(self.comm.Isend(buf, dest=r, tag=tag))
+        requests, received, local = [], [], {}
+        for r, regions in recvs:
+            boxes = [region_slices(lo, hi, grid.origin, grid.shape) for lo, hi in regions]
+            buf = None
+            if r != self.rank:
+                buf = np.empty(regions_size(fields, boxes), dtype=np.float64)
+                requests.append(self.comm.Irecv(buf, source=r, tag=tag))
+            received.append((r, boxes, buf))
+        for r, regions in sends:
+            boxes = [region_slices(lo, hi, grid.origin, grid.shape) for lo, hi in regions]
+            buf = np.empty(regions_size(fields, boxes), dtype=np.float64)
+            pack_regions(fields, boxes, buf)
+            if r == self.rank:
+                local[r] = buf
+            else:
+                requests.append(self.comm.Isend(buf, dest=r, tag=tag))
         MPI.Request.Waitall(requests)
-        for slices, buf in received:  # in rank order: a deterministic summation order
-            unpack_region(fields, slices, buf, add)
+        for r, boxes, buf in received:  # in rank order: a deterministic summation order
+            unpack_regions(fields, boxes, local[r] if buf is None else buf, add)
 
     def sum_ghosts_to_owners(self, grid, *names: str) -> None:
         """After P2G: each rank sends its partial sums on nodes owned by others to the owners,

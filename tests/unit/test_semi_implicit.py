@@ -11,12 +11,20 @@ import math
 import numpy as np
 import pytest
 
-import implicit_material  # noqa: F401  (registers type "test_neo_hookean")
+import implicit_material
 from hpcmpm.errors import InstabilityError
 from hpcmpm.kernels.transfer import SCATTER, static
 from hpcmpm.runner import initial_particles, make_domain
 from hpcmpm.scene import parse_scene
 from hpcmpm.simulation import Simulation
+
+
+
+@pytest.fixture(autouse=True, scope="module")
+def test_material():
+    with implicit_material.registered():
+        yield
+
 
 SCENE = """
 [simulation]
