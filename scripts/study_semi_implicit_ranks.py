@@ -42,7 +42,7 @@ FIELDS = ("x", "v", "b", "J")
 def run(scene: str, ranks: int, out: Path, dt: float, steps: int, extra) -> tuple[dict, dict]:
     end = steps * dt
     sets = [f"simulation.dt={dt}", f"simulation.end_time={end}", f"output.every={end}",
-            "solver.tolerance=1e-12", *extra]
+            "solver.tolerance=1e-12", 'output.fields=["b", "J"]', *extra]
     cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), "run", scene, "--out",
            str(out), "--quiet", "--force"]
     for s in sets:

@@ -39,6 +39,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..boundaries import Collider, PrescribedSet
+from ..boundaries.colliders import HALF_SPACE, SPHERE, BOX
 from ..errors import InstabilityError, SceneError
 from ..kernels.grid import update_velocity
 from ..kernels.implicit import (CONTRACT, SCATTER_DIAGONAL, SCATTER_TENSOR, add_inertia,
@@ -56,9 +57,6 @@ ARMIJO = 1e-4
 # Restarts of CG from its iterate when the true residual misses the tolerance that the
 # recursively updated one met (the recurrences drift by round-off at tight tolerances).
 CG_RESTARTS = 3
-# A gradient this small against |M v*| is round-off of a force-free state (a body in free
-# flight, a fluid at rest): no solve.
-ROUND_OFF = 1e-14
 
 VECTORS = ("velocity_star", "gradient", "inverse_diagonal", "cg_x", "cg_r", "cg_u", "cg_w",
            "cg_p", "cg_s")
@@ -158,16 +156,23 @@ class SemiImplicitIntegrator:
             self._gradient(sim, dt)
             gg, vv = self._dots(sim, [("gradient", "gradient"),
                                       ("velocity_star", "velocity_star")], (0, 2))
+            if not math.isfinite(gg):
+                raise SolverFailure(
+                    f"the implicit solve met an inadmissible material state (J, det b or tr b "
+                    f"<= 0: a non-finite gradient) at step {sim.step_index}, t={sim.time:.6g}. "
+                    f"Hint: lower simulation.max_dt or simulation.cfl, or use solver.mode = "
+                    f"'newton' (its line search keeps every state admissible).")
             if reference is None:
                 # |M (v^n + dt g)|; a scene at rest without gravity falls back on |g_0|.
                 reference = math.sqrt(vv) if vv > 0.0 else math.sqrt(gg)
             if line_search and gg <= (self.newton_tolerance * reference) ** 2:
                 newton_steps -= 1
                 break
-            if gg <= (ROUND_OFF * reference) ** 2:  # nothing to solve (free flight, rest)
-                break
             self._v_grad[:] = -self._v_grad  # the right-hand side -P g (projected already)
-            iterations, curved = self._cg(sim, dt, "gradient")
+            # Linearized: the tolerance is relative to max(|b|, |M v*|) (see `_cg`); Newton
+            # stops on its own criterion first, so its CG solves relative to |b| alone.
+            floor = 0.0 if line_search else (self.tolerance * reference) ** 2
+            iterations, curved = self._cg(sim, dt, "gradient", floor)
             cg_total += iterations
             if not line_search:
                 axpy(1.0, self._v_x.reshape(-1), self._v_velocity.reshape(-1))
@@ -349,24 +354,30 @@ class SemiImplicitIntegrator:
         self._project(dst)
 
     # -- conjugate gradients ----------------------------------------------------------------
-    def _cg(self, sim, dt: float, rhs: str) -> tuple[int, bool]:
+    def _cg(self, sim, dt: float, rhs: str, floor: float = 0.0) -> tuple[int, bool]:
         """Solve P H P x = b (b in grid[rhs], projected) into "cg_x" by preconditioned CG in
         the Chronopoulos-Gear form: one Hessian product and one allreduce (of r.u, w.u,
-        r.r) per iteration. Stops at |r| <= tolerance |b|; then checks the true residual
-        b - H x and restarts from x if it misses (at most `CG_RESTARTS` times). Returns the
-        iterations and whether it stopped on negative curvature (p.Hp <= 0: x is kept as it
-        was, a descent direction when non-zero)."""
+        r.r) per iteration. Stops at |r|^2 <= max(tolerance^2 |b|^2, floor); then checks the
+        true residual b - H x and restarts from x if it misses (at most `CG_RESTARTS`
+        times). Returns the iterations and whether it stopped on negative curvature
+        (p.Hp <= 0: x is kept as it was, a descent direction when non-zero).
+
+        The solve passes floor = (tolerance |M v*|)^2: a residual that small changes the
+        velocities by about tolerance |v*|, so the tolerance is relative to the larger of the
+        right-hand side and the momentum. Without the floor a body in free flight (b at
+        round-off, 1e-12 |M v*|) would have its round-off solved to 1e-6: hundreds of
+        iterations on a stiff crust for nothing."""
         f = self._flat
         x, r, u, w, p, s = (f[k].reshape(-1) for k in ("cg_x", "cg_r", "cg_u", "cg_w", "cg_p",
                                                        "cg_s"))
         b = f[rhs].reshape(-1)
-        self._jacobi(sim, dt)
         x[:] = 0.0
         r[:] = b
         (bb,) = self._dots(sim, [(rhs, rhs)])
-        if bb == 0.0:
+        target = max(self.tolerance * self.tolerance * bb, floor)
+        if bb <= target:
             return 0, False
-        target = self.tolerance * self.tolerance * bb
+        self._jacobi(sim, dt)
         iterations = restarts = 0
         while True:
             self._precondition("cg_r", "cg_u")
@@ -502,13 +513,13 @@ def kinematic_speed(sim) -> float:
         if isinstance(condition, Collider):
             size = condition.size
             d = condition.dim
-            if condition.shape == 0:  # half-space: anywhere in the domain
+            if condition.shape == HALF_SPACE:  # anywhere in the domain
                 reach = span
-            elif condition.shape == 1:
+            elif condition.shape == SPHERE:
                 reach = size[0]
-            elif condition.shape == 2:
+            elif condition.shape == BOX:
                 reach = float(np.linalg.norm(size[:d]))
-            else:
+            else:  # cylinder
                 reach = math.hypot(size[0], size[1])
             speed = max(speed, float(np.linalg.norm(condition.velocity))
                         + float(np.linalg.norm(condition.omega)) * reach)

@@ -34,7 +34,7 @@ def run(case, ranks, out, steps=None, checkpoint_every=None):
     steps = steps or full
     end = steps * dt
     sets = [f"simulation.dt={dt}", f"simulation.end_time={end}", f"output.every={end}",
-            "solver.tolerance=1e-12", *extra]
+            "solver.tolerance=1e-12", 'output.fields=["b", "J"]', *extra]
     args = ["run", scene, "--out", str(out), "--quiet", "--force"]
     if checkpoint_every:
         args += ["--checkpoint-every", str(checkpoint_every)]
