@@ -96,6 +96,7 @@ class SemiImplicitIntegrator:
         self.last_step: dict[str, float] = {}
         self._window: list[tuple[int, int]] = []
         self.negative_curvature = 0
+        self.halved_steps = 0
         self._warned_curvature = False
 
     # -- the step ---------------------------------------------------------------------------
@@ -133,14 +134,16 @@ class SemiImplicitIntegrator:
 
     def diagnostics(self) -> dict[str, float]:
         """CG iterations per step (mean, max) and Newton iterations per step (mean) over the
-        steps since the previous call (a run calls it at every frame), and the negative
-        curvature stops so far. The same on every rank."""
+        steps since the previous call (a run calls it at every frame), the negative
+        curvature stops and the linearized steps halved for admissibility so far. The same on
+        every rank."""
         window, self._window = self._window, []
         cg = [c for c, _ in window] or [0]
         newton = [n for _, n in window] or [0]
         return {"cg_iterations_mean": float(np.mean(cg)), "cg_iterations_max": float(max(cg)),
                 "newton_iterations_mean": float(np.mean(newton)),
-                "cg_negative_curvature": float(self.negative_curvature)}
+                "cg_negative_curvature": float(self.negative_curvature),
+                "halved_steps": float(self.halved_steps)}
 
     # -- the solve --------------------------------------------------------------------------
     def solve(self, sim, dt: float) -> None:
@@ -149,13 +152,22 @@ class SemiImplicitIntegrator:
             self._prepare(sim, dt)
         cg_total = 0
         newton_steps = 0
+        self._halvings = 0
         line_search = self.mode == "newton"
+        self._rested = False
         energy = self._start_energy(sim, dt) if line_search else 0.0
         reference = None
         for newton_steps in range(1, NEWTON_MAX_ITERATIONS + 1):
             self._gradient(sim, dt)
             gg, vv = self._dots(sim, [("gradient", "gradient"),
                                       ("velocity_star", "velocity_star")], (0, 2))
+            if not math.isfinite(gg) and not line_search and not self._rested:
+                # v* itself inverts a particle (a hard impact at a large dt): linearize at
+                # the constrained components alone, free ones at rest (Stomakhin 2013's
+                # x_hat = x), where every state is the admissible state of t^n.
+                self._rest_free_components()
+                self._rested = True
+                continue
             if not math.isfinite(gg):
                 raise SolverFailure(
                     f"the implicit solve met an inadmissible material state (J, det b or tr b "
@@ -175,7 +187,7 @@ class SemiImplicitIntegrator:
             iterations, curved = self._cg(sim, dt, "gradient", floor)
             cg_total += iterations
             if not line_search:
-                axpy(1.0, self._v_x.reshape(-1), self._v_velocity.reshape(-1))
+                self._admissible_step(sim, dt)
                 break
             energy = self._line_search(sim, dt, energy, curved and iterations == 0)
         else:
@@ -189,14 +201,15 @@ class SemiImplicitIntegrator:
             # leaving at v* (free in the mask) is stopped like in the explicit step; a
             # constrained node is unchanged by it.
             sim.apply_grid_boundaries(sim.grid["velocity"], dt)
-        self.last_step = {"cg_iterations": cg_total, "newton_iterations": newton_steps}
+        self.last_step = {"cg_iterations": cg_total, "newton_iterations": newton_steps,
+                          "halvings": self._halvings}
         self._window.append((cg_total, newton_steps))
 
     def _prepare(self, sim, dt: float) -> None:
         """v* = (p + dt f_ext)/m + dt g, the unknowns' mask, the constraints at v*, the
         initial guess v0 = v* with the boundary conditions applied, and particle scratch."""
         grid, d = sim.grid, sim.dim
-        names = VECTORS + (("velocity_trial",) if self.mode == "newton" else ())
+        names = VECTORS + ("velocity_trial",)
         if not self._declared:
             for name in names:
                 grid.declare(name, VECTOR)
@@ -455,16 +468,21 @@ class SemiImplicitIntegrator:
         total = sim.domain.sum(float(local)) + 0.5 * kinetic
         return total if math.isfinite(total) else math.inf
 
+    def _rest_free_components(self) -> None:
+        """Keep the constrained components of grid "velocity" (boundary values), zero the
+        free ones."""
+        v = self._v_velocity
+        free_part = v.copy()
+        project(free_part, self._free, self._nodes, self._node_basis, self._node_count)
+        v -= free_part
+
     def _start_energy(self, sim, dt: float) -> float:
         """E at the initial guess; when that is inadmissible, start from the constrained
         components alone (free ones at rest), which moves nothing but the boundaries."""
         energy = self._energy(sim, dt, "velocity")
         if math.isfinite(energy):
             return energy
-        v = self._v_velocity
-        fixed = v.copy()
-        project(fixed, self._free, self._nodes, self._node_basis, self._node_count)
-        v -= fixed
+        self._rest_free_components()
         energy = self._energy(sim, dt, "velocity")
         if not math.isfinite(energy):
             raise SolverFailure(
@@ -472,6 +490,29 @@ class SemiImplicitIntegrator:
                 f"t={sim.time:.6g} (a material state is inadmissible at v* and at rest). "
                 f"Hint: lower simulation.max_dt or simulation.cfl.")
         return energy
+
+    def _admissible_step(self, sim, dt: float) -> None:
+        """Linearized mode: v += dv, halved until every material state it makes is
+        admissible (E finite). A full step is taken whenever it is admissible, so this
+        changes nothing but the steps where one Newton step would invert a particle (a hard
+        impact at a large dt); those are counted in ``last_step["halvings"]``."""
+        f = self._flat
+        trial = f["velocity_trial"]
+        start = self._v_velocity.copy()
+        alpha = 1.0
+        for halving in range(LINE_SEARCH_HALVINGS):
+            np.multiply(self._v_x, alpha, out=trial)
+            trial += start
+            if math.isfinite(self._energy(sim, dt, "velocity_trial")):
+                self._v_velocity[:] = trial
+                self._halvings = halving
+                self.halved_steps += halving > 0
+                return
+            alpha *= 0.5
+        raise SolverFailure(
+            f"no admissible velocity along the linearized step at step {sim.step_index}, "
+            f"t={sim.time:.6g}. Hint: lower simulation.max_dt or simulation.cfl, or use "
+            f"solver.mode = 'newton'.")
 
     def _line_search(self, sim, dt: float, energy: float, steepest: bool) -> float:
         """Backtracking from the full Newton step: halve until E decreases enough (Armijo);

@@ -296,3 +296,34 @@ def test_time_step_is_advective():
     assert math.isclose((2.0 + 9.8 * dt) * dt, cfl * dx, rel_tol=1e-12)
     sim2, integ2, _ = grid_problem(dim=2, gravity=[0.0, 0.0])
     assert math.isclose(integ2.stable_dt(sim2, 2.0), cfl * dx / 2.0, rel_tol=1e-12)
+
+
+def test_constraint_directions_of_walls():
+    """`Walls.constrain` at a trial velocity: sticky fixes every axis, slip the normal,
+    separate the normal only where the node moves into the wall; a corner gets the span of
+    both faces (orthonormal rows), nodes without mass nothing."""
+    from hpcmpm.boundaries import Walls
+    from hpcmpm.scene import WallFace
+
+    faces = [WallFace("sticky"), WallFace("separate"), WallFace("slip"), WallFace("slip")]
+    walls = Walls(faces, np.array([4, 4]))
+    shape = (6, 6)  # nodes -1 .. 4 per axis
+    origin = np.array([-1, -1])
+    velocity = np.zeros(shape + (2,))
+    velocity[5, :, 0] = 1.0  # block 5 = global node 4, the x_upper face: moving in (+x)
+    velocity[5, 2, 0] = -1.0  # moving away from that wall
+    mass = np.ones(shape)
+    mass[0, 2] = 0.0
+    count = np.zeros(shape + (1,), dtype=np.int64)
+    basis = np.zeros(shape + (1, 3, 3))
+    walls.constrain(velocity, origin, 0.25, np.zeros(2), 0.0, 0.01, mass, basis, count)
+    c = count[..., 0]
+    assert c[0, 3] == 2 and c[1, 3] == 2  # x_lower sticky: global nodes -1 and 0
+    assert c[0, 2] == 0  # no mass: not an unknown, nothing to fix
+    assert c[5, 3] == 1 and np.allclose(basis[5, 3, 0, 0], [-1.0, 0.0, 0.0])  # moving in
+    assert c[5, 2] == 0  # separate, moving away: free
+    assert c[3, 0] == 1 and np.allclose(np.abs(basis[3, 0, 0, 0]), [0.0, 1.0, 0.0])  # slip
+    assert c[5, 0] == 2  # corner: separate (moving in) and slip
+    q = basis[5, 0, 0, :2, :2]
+    assert np.allclose(q @ q.T, np.eye(2))
+    assert c[3, 3] == 0  # interior
