@@ -24,6 +24,7 @@ class Curve:
     style: str = "-"  # matplotlib format string, e.g. "o-", "s--", "*:"
     colour: str | None = None
     size: float | None = None  # marker size
+    every: int = 1  # draw a marker at every n-th point only (dense data)
 
 
 @dataclass
@@ -58,6 +59,8 @@ def draw_panel(ax, panel: Panel) -> None:
             kwargs["color"] = c.colour
         if c.size is not None:
             kwargs["markersize"] = c.size
+        if c.every > 1:
+            kwargs["markevery"] = c.every
         ax.plot(np.asarray(c.x), np.asarray(c.y), c.style, label=c.label, **kwargs)
     if panel.hline is not None:
         ax.axhline(panel.hline, color="0.5", linestyle="--", linewidth=0.8)
@@ -114,10 +117,11 @@ def curve_against_reference(path, x, y, reference: Callable | tuple, *, label: s
     difference = y - ref_at_x
     if relative_to:
         difference = difference / relative_to
+    every = max(1, len(x) // 50)  # about 50 markers, so the reference stays visible
     plot_panels(path, [
-        Panel([Curve(*ref_curve, reference_label, "-", "0.4"),
-               Curve(x, y, label, "o", "C0", 3.0)], "", ylabel, title),
-        Panel([Curve(x, difference, None, "o-", "C3", 3.0)], xlabel,
+        Panel([Curve(*ref_curve, reference_label, "-", "0.3"),
+               Curve(x, y, label, "o", "C0", 3.5, every)], "", ylabel, title),
+        Panel([Curve(x, difference, None, "o-" if every == 1 else "-", "C3", 3.0)], xlabel,
               "difference" + (f" / {relative_to:.3g}" if relative_to else ""), hline=0.0),
     ], sharex=True, panel_size=(6.0, 2.6))
     return difference

@@ -164,5 +164,5 @@ def render_command(args) -> int:
         print(f"rendered {len(result.pngs)} frame(s) into {folder}/render_*.png "
               f"({result.seconds_per_frame:.3g} s a frame per rank, {comm.size} rank(s))")
         if result.movie is not None:
-            print(f"movie: {result.movie}")
+            print(f"movie: {result.movie.resolve()}")
     return 0

@@ -11,7 +11,7 @@ edges.
 
 Default camera: looking at the domain's centre from the front, right and above (relative to
 the "up" axis, opposite to gravity, else z), far enough that the domain's bounding sphere
-fits the vertical field of view. ``--camera 'eye=X,Y,Z;target=X,Y,Z;up=X,Y,Z;fov=DEG'`` sets
+fits the vertical field of view (30 degrees). ``--camera 'eye=X,Y,Z;target=X,Y,Z;up=X,Y,Z;fov=DEG'`` sets
 any of them.
 """
 
@@ -72,7 +72,9 @@ def default_camera(lower: np.ndarray, upper: np.ndarray, up_axis: int,
     across, depth_axis = [a for a in range(3) if a != up_axis]
     direction = 0.55 * np.eye(3)[across] - 0.85 * np.eye(3)[depth_axis] + 0.5 * up
     direction /= np.linalg.norm(direction)
-    distance = radius / math.sin(math.radians(fov) / 2)
+    # The bounding sphere fits the vertical field of view, with 10 % to spare: perspective
+    # makes the near corners reach a little beyond the sphere's outline.
+    distance = 1.1 * radius / math.sin(math.radians(fov) / 2)
     return Camera(centre + distance * direction, centre, up, fov)
 
 
