@@ -68,7 +68,7 @@ class Canvas:
         self.figure = Figure(figsize=(self.width / DPI, self.height / DPI), dpi=DPI,
                              facecolor=BACKGROUND)
         self.canvas = FigureCanvasAgg(self.figure)
-        font = max(6.0, min(self.width / 45, self.height / 30))
+        font = max(6.0, min(self.width / 45, self.height / 30, 13.0))  # points
         self.font = font
         bar_w = max(8, round(0.025 * self.width))
         label_w = round(4.8 * font * DPI / 72)  # room for tick labels and the bar's label (px)

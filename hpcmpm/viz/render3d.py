@@ -4,7 +4,7 @@ A numba kernel splats the spheres into a z-buffer, nearest first (depth-sorted, 
 pixels are rejected before they are shaded), at twice the output resolution; each covered
 pixel takes the depth of the sphere's surface there and Blinn-Phong shading (ambient + diffuse
 + a small specular highlight) from a light above the camera's left shoulder. The image is
-averaged down 2x2 (anti-aliasing) and laid into the picture's view over the domain box's
+averaged down 2x2 (anti-aliasing, a second kernel) and laid into the picture's view over the domain box's
 edges, drawn with matplotlib beneath it, so particles hide the edges behind them. Sphere
 colliders are splatted in grey with the particles; box and cylinder colliders are drawn as
 edges.
@@ -113,7 +113,7 @@ def parse_camera(spec: str | None, default: Camera) -> Camera:
 
 @njit(cache=True)
 def splat_spheres(col, row, depth, radius_px, radius, rgb, light, halfway, image, zbuf):
-    """Shade spheres into ``image`` (H, W, 3) with depth test against ``zbuf`` (H, W).
+    """Shade spheres into ``image`` (H, W, >= 3) with depth test against ``zbuf`` (H, W).
 
     Particles must come nearest first. Sphere p covers the pixels within ``radius_px[p]`` of
     (col, row); at offset (a, b) / radius_px the surface normal in camera coordinates is
@@ -146,6 +146,32 @@ def splat_spheres(col, row, depth, radius_px, radius, rgb, light, halfway, image
                     image[j, i, c] = min(1.0, rgb[p, c] * shade + SPECULAR * spec)
 
 
+@njit(cache=True)
+def downsample(image, zbuf, s, out):
+    """``out`` (h, w, 4) RGBA from the s x s blocks of ``image`` (s h, s w, 3): alpha is the
+    covered fraction (``zbuf`` finite), colour the mean over the covered pixels, so edges are
+    anti-aliased against whatever lies beneath."""
+    h, w = out.shape[:2]
+    for j in range(h):
+        for i in range(w):
+            r = g = b = 0.0
+            covered = 0
+            for jj in range(j * s, j * s + s):
+                for ii in range(i * s, i * s + s):
+                    if zbuf[jj, ii] < np.inf:
+                        covered += 1
+                        r += image[jj, ii, 0]
+                        g += image[jj, ii, 1]
+                        b += image[jj, ii, 2]
+            if covered:
+                out[j, i, 0] = r / covered
+                out[j, i, 1] = g / covered
+                out[j, i, 2] = b / covered
+            else:
+                out[j, i, 0] = out[j, i, 1] = out[j, i, 2] = 1.0
+            out[j, i, 3] = covered / (s * s)
+
+
 class Renderer3D:
     """Draws frames of one run into a fixed canvas; ``draw`` returns the (H, W, 3) picture."""
 
@@ -156,21 +182,25 @@ class Renderer3D:
         self.camera = camera
         self.canvas = Canvas(size, scale, geometry.name)
         _, _, self.w, self.h = self.canvas.view_px
-        ax = self.canvas.view
-        ax.set_xlim(0, self.w)
-        ax.set_ylim(self.h, 0)
-        self._segments(box_edges(geometry.lower, geometry.upper), "0.35", 0)
+        self.overlay = self.canvas.figure.add_axes(self.canvas.view.get_position(), zorder=2)
+        for ax in (self.canvas.view, self.overlay):
+            ax.set_axis_off()
+            ax.set_xlim(0, self.w)
+            ax.set_ylim(self.h, 0)
+        self.canvas.view.set_zorder(0)
+        self._segments(box_edges(geometry.lower, geometry.upper), "0.35", 0, self.canvas.view)
         light = LIGHT / np.linalg.norm(LIGHT)
         halfway = light + np.array([0.0, 0.0, -1.0])
         self.light, self.halfway = light, halfway / np.linalg.norm(halfway)
         self._artists: list = []
+        self._buffers = None
 
     def pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(column, row) of world points in the view's pixels (origin: its top-left corner)."""
         col, row, _, _ = self.camera.project(points, self.w, self.h)
         return col, row
 
-    def _segments(self, segments: np.ndarray, colour, zorder: int):
+    def _segments(self, segments: np.ndarray, colour, zorder: int, ax):
         from matplotlib.collections import LineCollection
 
         if len(segments) == 0:
@@ -178,7 +208,7 @@ class Renderer3D:
         col, row = self.pixels(segments.reshape(-1, 3))
         lines = LineCollection(np.stack([col, row], axis=1).reshape(-1, 2, 2), colors=colour,
                                linewidths=0.8, zorder=zorder)
-        return self.canvas.view.add_collection(lines, autolim=False)
+        return ax.add_collection(lines, autolim=False)
 
     def draw(self, x: np.ndarray, values: np.ndarray, time: float) -> np.ndarray:
         for artist in self._artists:
@@ -192,14 +222,14 @@ class Renderer3D:
             radius = np.concatenate([radius, radii])
             rgb = np.concatenate([rgb, np.tile(COLLIDER_RGB, (len(spheres), 1))])
         image = self.raster(x, radius, rgb)
-        ax = self.canvas.view
-        self._artists = [ax.imshow(image, extent=(0, self.w, self.h, 0),
-                                   interpolation="nearest", zorder=1)]
-        lines = self._segments(edges, "0.25", 2)
+        left, bottom, _, _ = self.canvas.view_px
+        # Placed pixel for pixel (no resampling), above the view's box edges and below the
+        # overlay that holds the colliders' edges.
+        self._artists = [self.canvas.figure.figimage(image, left, bottom, origin="upper",
+                                                     zorder=1)]
+        lines = self._segments(edges, "0.25", 2, self.overlay)
         if lines is not None:
             self._artists.append(lines)
-        ax.set_xlim(0, self.w)
-        ax.set_ylim(self.h, 0)
         self.canvas.set_title(frame_title(self.geometry.name, time))
         return self.canvas.rgb()
 
@@ -211,17 +241,17 @@ class Renderer3D:
         visible = np.isfinite(col) & (depth > 0)
         order = np.argsort(np.where(visible, depth, np.inf), kind="stable")
         order = order[visible[order]]
-        image = np.zeros((H, W, 3))
-        zbuf = np.full((H, W), np.inf)
+        if self._buffers is None:  # reused: allocating them was a third of a frame's time
+            self._buffers = (np.empty((H, W, 3), dtype=np.float32),
+                             np.empty((H, W), dtype=np.float32))
+        image, zbuf = self._buffers
+        zbuf.fill(np.inf)
         splat_spheres(col[order], row[order], depth[order], focal * radius[order] / depth[order],
                       radius[order], np.ascontiguousarray(rgb[order], dtype=np.float64),
                       self.light, self.halfway, image, zbuf)
-        covered = np.isfinite(zbuf)
-        # 2x2 box filter over premultiplied colour: edges blend into whatever lies beneath.
-        alpha = covered.reshape(self.h, s, self.w, s).mean(axis=(1, 3))
-        colour = (image * covered[..., None]).reshape(self.h, s, self.w, s, 3).sum(axis=(1, 3))
-        colour /= np.maximum(alpha * s * s, 1e-12)[..., None]
-        return np.concatenate([colour, alpha[..., None]], axis=2)
+        out = np.empty((self.h, self.w, 4), dtype=np.float32)
+        downsample(image, zbuf, s, out)
+        return out
 
 
 def box_edges(lower: np.ndarray, upper: np.ndarray, rotation: np.ndarray | None = None,
