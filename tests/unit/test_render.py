@@ -281,3 +281,39 @@ def test_plot_reproduces_the_energy_series(tmp_path, capsys):
             momentum = json.loads(h5.attrs["momentum"])
             for k, axis in enumerate("xyz"):
                 assert table[f"momentum_{axis}"][i] == momentum[k]
+
+
+def test_field_values_and_components():
+    from hpcmpm.viz.fields import available_fields, field_values, parse_field
+
+    rng = np.random.default_rng(3)
+    F = np.eye(3) + 0.1 * rng.standard_normal((5, 3, 3))
+    tau = rng.standard_normal((5, 3, 3))
+    v = rng.standard_normal((5, 3))
+    data = {"v": v, "F": F, "tau": tau, "material": np.arange(5, dtype=np.int32)}
+    shapes = {k: a.shape for k, a in data.items()}
+    assert available_fields(shapes) == ["F", "J", "material", "pressure", "speed", "tau", "v"]
+
+    def values(spec):
+        return field_values(parse_field(spec), data, 3)
+
+    # Each against its definition written out here.
+    np.testing.assert_allclose(values(None), np.sqrt((v ** 2).sum(axis=1)), rtol=1e-15)
+    np.testing.assert_array_equal(values("v:y"), v[:, 1])
+    np.testing.assert_array_equal(values("v:2"), v[:, 2])
+    np.testing.assert_array_equal(values("F:xz"), F[:, 0, 2])
+    np.testing.assert_array_equal(values("F:2,1"), F[:, 2, 1])
+    np.testing.assert_array_equal(values("F:5"), F[:, 1, 2])  # flat row-major index
+    np.testing.assert_allclose(values("F:trace"), F[:, 0, 0] + F[:, 1, 1] + F[:, 2, 2])
+    J = np.array([np.linalg.det(f) for f in F])
+    np.testing.assert_allclose(values("J"), J, rtol=1e-13)
+    np.testing.assert_allclose(values("F:det"), J, rtol=1e-13)
+    # pressure = -tr(sigma) / d with sigma = tau / J
+    np.testing.assert_allclose(values("pressure"),
+                               -(tau[:, 0, 0] + tau[:, 1, 1] + tau[:, 2, 2]) / (3 * J),
+                               rtol=1e-13)
+    np.testing.assert_array_equal(values("material"), np.arange(5.0))
+    for spec, message in [("material:x", "is a scalar"), ("F:xw", "no component 'xw'"),
+                          ("v:3", "no component '3'")]:
+        with pytest.raises(RenderError, match=message):
+            values(spec)
