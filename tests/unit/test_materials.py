@@ -455,3 +455,28 @@ def test_ob_explicit_time_step_problem():
         assert fe.time_step_problem(2e-3).startswith(f"plasticity: '{plasticity}' needs dt")
     assert fe.integrator_problem("explicit") is None
     assert "explicit integrator only" in fe.integrator_problem("semi_implicit")
+
+
+def test_viscoelastic_configure_checks_the_scene():
+    """configure(scene) turns time_step_problem / integrator_problem into one SceneError line
+    "{file}: materials[i].plasticity: ..."; the largest time step is the fixed dt, else
+    max_dt and (explicit) the material's own CFL and viscous bounds."""
+    from types import SimpleNamespace
+    mat = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1e-3,
+                                           "viscosity": 0.5, "plasticity": "ob_explicit"}), 2)
+    scene = SimpleNamespace(path="s.toml", dt=None, max_dt=None, cfl=0.4, dx=0.01,
+                            integrator="explicit", materials=[mat.spec],
+                            material_index=lambda name: 0)
+    # Explicit: dt <= min(cfl dx / c, rho dx^2 / (2 d mu_N)) = min(8.9e-4, 5e-5) < Wi: fine.
+    assert mat.dt_limit(0.01) == pytest.approx(RHO * 1e-4 / (2 * 2 * 0.5))
+    mat.configure(scene)
+    scene.integrator = "semi_implicit"  # advection-bounded dt: unbounded without max_dt
+    with pytest.raises(SceneError, match=r"s\.toml: materials\[0\]\.plasticity: 'ob_explicit' "
+                                         r"needs dt <= relaxation_time"):
+        mat.configure(scene)
+    scene.max_dt = 1e-3
+    mat.configure(scene)
+    bdf2 = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1.0,
+                                            "plasticity": "fe_bdf2"}), 2)
+    with pytest.raises(SceneError, match="explicit integrator only"):
+        bdf2.configure(scene)
