@@ -74,7 +74,8 @@ def study(name: str, multiples, extra=(), window=None) -> dict:
         advance(base, start, 10 * speed)
     rows = {}
     for k in multiples:
-        sim = build(name, [*extra, f"simulation.dt={k * dt_e}"])
+        # Frames only at the window's end: a frame time would clip the fixed dt.
+        sim = build(name, [*extra, f"simulation.dt={k * dt_e}", f"output.every={end}"])
         sim.particles = copy.deepcopy(base.particles)
         sim.time, sim.step_index = base.time, base.step_index
         sim.request_sort()
