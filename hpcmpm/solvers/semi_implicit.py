@@ -528,7 +528,11 @@ class SemiImplicitIntegrator:
             (slope,) = self._dots(sim, [("cg_x", "gradient")])
             slope = -slope
         trial = f["velocity_trial"]
-        alpha = 1.0
+        # Start no further than a change of dx/dt in any node velocity (one cell of
+        # displacement): on an indefinite Hessian the CG direction can be far too long, and
+        # halving from 1 would not reach an admissible point.
+        largest = sim.domain.max(float(np.abs(direction).max()) if direction.size else 0.0)
+        alpha = min(1.0, sim.dx / (dt * largest)) if largest > 0.0 else 1.0
         for _ in range(LINE_SEARCH_HALVINGS):
             np.multiply(direction, alpha, out=trial)
             trial += self._v_velocity
