@@ -13,8 +13,10 @@ from typing import Any
 from ..errors import SceneError
 from .base import ElasticMaterial, Material, Param, check_params, lame
 from .fixed_corotated import FixedCorotated
+from .j2 import J2Plasticity
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
+from .shock import ShockModel
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
 from .weakly_compressible import WeaklyCompressible
@@ -22,7 +24,7 @@ from .weakly_compressible import WeaklyCompressible
 MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
-                WeaklyCompressible)
+                WeaklyCompressible, ShockModel, J2Plasticity)
 }
 
 
@@ -52,5 +54,5 @@ def make_material(spec, dim: int) -> Material:
 
 
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
-           "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
-           "StableNeoHookean", "Snow", "WeaklyCompressible"]
+           "make_material", "validate_params", "FixedCorotated", "J2Plasticity", "LinearElastic",
+           "NeoHookean", "ShockModel", "StableNeoHookean", "Snow", "WeaklyCompressible"]

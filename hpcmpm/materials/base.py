@@ -13,10 +13,15 @@ accepts in a scene's ``[[materials]]`` table (besides ``name``, ``type`` and ``d
     low_inclusive: bool    True: value >= low is allowed; False (default): value > low
     high_inclusive: bool   True: value <= high is allowed; False (default): value < high
     doc: str               one line for the user: meaning and units
+    choices: tuple | None  a string key: the allowed values (``default`` may be one of them)
+    schema: dict | None    a sub-table key (``eos = {type = ..., c0 = ...}``): its own schema
+    check: callable | None extra check of the value: returns a problem string or None
 
 So ``Param(0.0, math.inf)`` is "required, > 0" and ``Param(-1.0, 0.5)`` is "required,
--1 < value < 0.5". A value must be a real number (bool is not) and finite unless a bound is
-infinite and inclusive (none of the built-in models allows that).
+-1 < value < 0.5". A numeric value must be a real number (bool is not) and finite unless a
+bound is infinite and inclusive (none of the built-in models allows that). A ``choices`` key
+takes a string from the tuple; a ``schema`` key takes a table checked against that schema,
+its problems named ``"{key}.{subkey}: ..."`` (``"eos.c0: must be > 0, got -1"``).
 
 `check_params(parameters, params)` returns one problem string per bad key, in the house format
 ``"{key}: {what is wrong}"``, e.g. ``"nu: must be < 0.5, got 0.5"``, ``"E: missing"``,
@@ -38,13 +43,16 @@ from ..state import FieldSpec
 class Param(NamedTuple):
     """Accepted range of one material parameter (see the module docstring)."""
 
-    low: float
-    high: float
+    low: float = -math.inf
+    high: float = math.inf
     required: bool = True
-    default: float | None = None
+    default: Any = None
     low_inclusive: bool = False
     high_inclusive: bool = False
     doc: str = ""
+    choices: tuple[str, ...] | None = None
+    schema: dict[str, "Param"] | None = None
+    check: Callable[[Any], str | None] | None = None
 
 
 YOUNG = Param(0.0, math.inf, doc="Young's modulus E (stress units)")
@@ -81,6 +89,9 @@ def check_params(parameters: dict[str, Param], params: dict[str, Any]) -> list[s
             if spec.required:
                 problems.append(f"{key}: missing")
             continue
+        if spec.choices is not None or spec.schema is not None:
+            problems += _check_non_numeric(key, spec, params[key])
+            continue
         x = _number(params[key])
         if x is None or math.isnan(x):
             problems.append(f"{key}: must be a number, got {params[key]!r}")
@@ -96,7 +107,40 @@ def check_params(parameters: dict[str, Param], params: dict[str, Any]) -> list[s
             problems.append(f"{key}: must be <= {spec.high:g}, got {x:g}")
         elif not spec.high_inclusive and x >= spec.high:
             problems.append(f"{key}: must be < {spec.high:g}, got {x:g}")
+        if spec.check is not None and (what := spec.check(x)) is not None:
+            problems.append(f"{key}: {what}")
     return problems
+
+
+def _check_non_numeric(key: str, spec: Param, value: Any) -> list[str]:
+    """Problems of a ``choices`` (string) or ``schema`` (sub-table) key."""
+    if spec.choices is not None:
+        if not isinstance(value, str) or value not in spec.choices:
+            return [f"{key}: must be one of {', '.join(map(repr, spec.choices))}, "
+                    f"got {value!r}"]
+        return []
+    if not isinstance(value, dict):
+        return [f"{key}: must be a table {{...}}, got {value!r}"]
+    problems = [f"{key}.{p}" for p in check_params(spec.schema, value)]
+    if not problems and spec.check is not None and (what := spec.check(value)) is not None:
+        problems.append(f"{key}: {what}")
+    return problems
+
+
+def resolve_params(parameters: dict[str, Param], params: dict[str, Any]) -> dict[str, Any]:
+    """The checked ``params`` with defaults filled in: numbers as float, choices as str,
+    sub-tables resolved by their schema (an absent optional sub-table stays None)."""
+    out: dict[str, Any] = {}
+    for key, spec in parameters.items():
+        if key not in params:
+            out[key] = spec.default
+        elif spec.schema is not None:
+            out[key] = resolve_params(spec.schema, params[key])
+        elif spec.choices is not None:
+            out[key] = str(params[key])
+        else:
+            out[key] = float(params[key])
+    return out
 
 
 def lame(E: float, nu: float) -> tuple[float, float]:
@@ -134,8 +178,7 @@ class Material:
         self.spec = spec
         self.dim = dim
         self.density = float(spec.density)
-        self.params = {key: float(spec.params[key]) if key in spec.params else p.default
-                       for key, p in self.parameters.items()}
+        self.params = resolve_params(self.parameters, dict(spec.params))
         self.mu = 0.0
         self.lam = 0.0
 
@@ -144,6 +187,10 @@ class Material:
         bound."""
         return math.sqrt((self.lam + 2.0 * self.mu) / self.density)
 
+    def configure(self, *, dx: float) -> None:
+        """Called by the simulation once the grid is known. Models with a length scale (the
+        artificial viscosity of the impact models) keep ``dx``; the default ignores it."""
+
     def update_stress(self, fields: dict[str, np.ndarray], dt: float) -> None:
         raise NotImplementedError
 
@@ -151,7 +198,8 @@ class Material:
         raise NotImplementedError
 
     def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v:g}" for k, v in self.params.items())
+        args = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v!r}"
+                         for k, v in self.params.items())
         return f"{type(self).__name__}({args}, density={self.density:g}, dim={self.dim})"
 
 

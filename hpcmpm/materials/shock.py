@@ -1,0 +1,300 @@
+"""The shock-wave effects model (003 §7.2.2): stable Neo-Hookean shear, an EOS for the volume.
+
+    sigma = dev(J_E^-1 P_SNH(F_E) F_E^T) - (p + q) I,   tau = J sigma            (003 §7.2.2)
+
+P_SNH is the stable Neo-Hookean stress (003 eq. 7.2, `stable_neo_hookean`); only its deviator
+is kept, J_E^-1 mu I_C/(I_C + 1) dev(F_E F_E^T) (the volumetric lam (J - alpha) term is a
+multiple of I and drops out). p is the Mie-Grüneisen pressure of the *total* volume ratio
+J = det F and the internal energy E (`eos`, corrected 003 eq. 7.4), q the artificial
+viscosity. Table 7.1's "DP" plasticity is the snow clamp (Stomakhin 2013; 003 §3.3.3) of the
+singular values of F_E to [1 - theta_c, 1 + theta_s]; without theta_c/theta_s F_E is the whole
+F. The clamp bounds only the shear: the volume answers to the EOS whatever F_E does.
+
+In 2D the model is the 2D continuum of the house stable Neo-Hookean (d = 2 in I_C - d, its
+2D Lamé reparameterisation, the 2D deviator): its P-wave modulus is rho0 c0^2 + mu, against
+rho0 c0^2 + 4/3 mu in 3D.
+
+Deformation mode "L": `update_state` advances the particle's own state from the step's
+velocity gradient L (fields["L"]): F_E <- (I + dt L) F_E then the clamp,
+J <- J exp(dt tr L) (exact for rigid spin, where det(I + dt L) = 1 + dt^2 |W|^2 drifts), and
+E, p by the energy balance of `eos`. `update_stress` writes tau from that state and the stored
+L (for q), changing nothing.
+
+Fields: F_E (elastic deformation gradient), J (total volume ratio), E (internal energy per
+reference volume), pressure (EOS pressure p, without q, for output).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..state import SCALAR, TENSOR, FieldSpec
+from .base import POISSON, Material, Param, lame
+from .decompositions import svd2, svd3
+from .eos import (EOS_SCHEMA, MAX_REPORTED, VISCOSITY_PARAMS, Volumetric, artificial_viscosity,
+                  effective_speed, energy_update, failure_messages, pressure, sound_speed_sq)
+from .tensors import det2, det3, frob2, frob3, load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
+
+
+# -- deviatoric Cauchy stress of the stable Neo-Hookean model ------------------------------
+@njit(cache=True, inline="always")
+def snh_dev_cauchy_2d(f, mu):
+    """dev(J^-1 P_SNH(F) F^T) for a 2x2 tuple F; mu is the energy's (reparameterised)
+    modulus: J^-1 mu I_C/(I_C + 1) dev(F F^T) (003 eq. 7.2)."""
+    ic = frob2(f)
+    m = mu * ic / ((ic + 1.0) * det2(f))
+    b = mul2_bt(f, f)
+    h = 0.5 * (b[0] + b[3])
+    return (m * (b[0] - h), m * b[1], m * b[2], m * (b[3] - h))
+
+
+@njit(cache=True, inline="always")
+def snh_dev_cauchy_3d(f, mu):
+    """dev(J^-1 P_SNH(F) F^T) for a 3x3 tuple F (see the 2D version)."""
+    ic = frob3(f)
+    m = mu * ic / ((ic + 1.0) * det3(f))
+    b = mul3_bt(f, f)
+    h = (b[0] + b[4] + b[8]) / 3.0
+    return (m * (b[0] - h), m * b[1], m * b[2],
+            m * b[3], m * (b[4] - h), m * b[5],
+            m * b[6], m * b[7], m * (b[8] - h))
+
+
+@njit(cache=True, inline="always")
+def _clamp(s, lo, hi):
+    return min(max(s, lo), hi)
+
+
+# -- state update (after G2P) ----------------------------------------------------------------
+@njit(cache=True)
+def _update_state_2d(L, F_E, J, E, P, dt, mu, shear, clamp, lo, hi, kind, rho0, c0, s,
+                     gamma0, K, length, q1, q2, bad_index, bad_J):
+    """F_E, J, E, P (n, ...) advanced over dt from L (n, 2, 2); returns the number of
+    particles whose EOS failed (their J becomes NaN; the first ones go to bad_index/bad_J)."""
+    nbad = 0
+    for p in range(L.shape[0]):
+        l = load2(L, p)
+        fe = mul2((1.0 + dt * l[0], dt * l[1], dt * l[2], 1.0 + dt * l[3]), load2(F_E, p))
+        if clamp:
+            U, s0, s1, V = svd2(fe)
+            c0_, c1_ = _clamp(s0, lo, hi), _clamp(s1, lo, hi)
+            if c0_ != s0 or c1_ != s1:
+                fe = mul2_bt((U[0] * c0_, U[1] * c1_, U[2] * c0_, U[3] * c1_), V)
+        store2(F_E, p, fe)
+        tr_d = l[0] + l[3]
+        J0, E0 = J[p], E[p]
+        J1 = J0 * math.exp(dt * tr_d)
+        sd = snh_dev_cauchy_2d(fe, mu)
+        w_dev = dt * 0.5 * (J0 + J1) * (sd[0] * l[0] + sd[1] * l[1] + sd[2] * l[2] + sd[3] * l[3])
+        p0, dp0 = pressure(J0, E0, kind, rho0, c0, s, gamma0, K)
+        c = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
+        q = artificial_viscosity(rho0 / J1, tr_d, c, length, q1, q2)
+        E1, p1 = energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s, gamma0, K)
+        if not math.isfinite(p1):
+            if nbad < bad_index.shape[0]:
+                bad_index[nbad] = p
+                bad_J[nbad] = J1
+            nbad += 1
+            J[p] = math.nan
+            continue
+        J[p] = J1
+        E[p] = E1
+        P[p] = p1
+    return nbad
+
+
+@njit(cache=True)
+def _update_state_3d(L, F_E, J, E, P, dt, mu, shear, clamp, lo, hi, kind, rho0, c0, s,
+                     gamma0, K, length, q1, q2, bad_index, bad_J):
+    """3D version of `_update_state_2d`."""
+    nbad = 0
+    for p in range(L.shape[0]):
+        l = load3(L, p)
+        A = (1.0 + dt * l[0], dt * l[1], dt * l[2],
+             dt * l[3], 1.0 + dt * l[4], dt * l[5],
+             dt * l[6], dt * l[7], 1.0 + dt * l[8])
+        fe = mul3(A, load3(F_E, p))
+        if clamp:
+            U, s0, s1, s2, V = svd3(fe)
+            a0, a1, a2 = _clamp(s0, lo, hi), _clamp(s1, lo, hi), _clamp(s2, lo, hi)
+            if a0 != s0 or a1 != s1 or a2 != s2:
+                fe = mul3_bt((U[0] * a0, U[1] * a1, U[2] * a2,
+                              U[3] * a0, U[4] * a1, U[5] * a2,
+                              U[6] * a0, U[7] * a1, U[8] * a2), V)
+        store3(F_E, p, fe)
+        tr_d = l[0] + l[4] + l[8]
+        J0, E0 = J[p], E[p]
+        J1 = J0 * math.exp(dt * tr_d)
+        sd = snh_dev_cauchy_3d(fe, mu)
+        work = 0.0
+        for k in range(9):
+            work += sd[k] * l[k]
+        w_dev = dt * 0.5 * (J0 + J1) * work
+        p0, dp0 = pressure(J0, E0, kind, rho0, c0, s, gamma0, K)
+        c = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
+        q = artificial_viscosity(rho0 / J1, tr_d, c, length, q1, q2)
+        E1, p1 = energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s, gamma0, K)
+        if not math.isfinite(p1):
+            if nbad < bad_index.shape[0]:
+                bad_index[nbad] = p
+                bad_J[nbad] = J1
+            nbad += 1
+            J[p] = math.nan
+            continue
+        J[p] = J1
+        E[p] = E1
+        P[p] = p1
+    return nbad
+
+
+# -- stress (before P2G) ---------------------------------------------------------------------
+@njit(cache=True)
+def _stress_2d(L, F_E, J, E, tau, mu, shear, kind, rho0, c0, s, gamma0, K, length, q1, q2):
+    """tau = J (dev sigma_SNH(F_E) - (p + q) I), (n, 2, 2); q from the stored L."""
+    for p in range(J.shape[0]):
+        sd = snh_dev_cauchy_2d(load2(F_E, p), mu)
+        Jp = J[p]
+        pr, dp = pressure(Jp, E[p], kind, rho0, c0, s, gamma0, K)
+        c = math.sqrt(sound_speed_sq(Jp, pr, dp, kind, rho0, gamma0, shear))
+        tr_d = L[p, 0, 0] + L[p, 1, 1]
+        pq = pr + artificial_viscosity(rho0 / Jp, tr_d, c, length, q1, q2)
+        store2(tau, p, (Jp * (sd[0] - pq), Jp * sd[1], Jp * sd[2], Jp * (sd[3] - pq)))
+
+
+@njit(cache=True)
+def _stress_3d(L, F_E, J, E, tau, mu, shear, kind, rho0, c0, s, gamma0, K, length, q1, q2):
+    """3D version of `_stress_2d`."""
+    for p in range(J.shape[0]):
+        sd = snh_dev_cauchy_3d(load3(F_E, p), mu)
+        Jp = J[p]
+        pr, dp = pressure(Jp, E[p], kind, rho0, c0, s, gamma0, K)
+        c = math.sqrt(sound_speed_sq(Jp, pr, dp, kind, rho0, gamma0, shear))
+        tr_d = L[p, 0, 0] + L[p, 1, 1] + L[p, 2, 2]
+        pq = pr + artificial_viscosity(rho0 / Jp, tr_d, c, length, q1, q2)
+        store3(tau, p, (Jp * (sd[0] - pq), Jp * sd[1], Jp * sd[2],
+                        Jp * sd[3], Jp * (sd[4] - pq), Jp * sd[5],
+                        Jp * sd[6], Jp * sd[7], Jp * (sd[8] - pq)))
+
+
+@njit(cache=True)
+def max_effective_speed(L, J, E, shear, kind, rho0, c0, s, gamma0, K, length, q1, q2):
+    """max_p of the state-dependent speed Q + sqrt(Q^2 + c^2) (`eos`); L (n, d, d)."""
+    d = L.shape[1]
+    top = 0.0
+    for p in range(J.shape[0]):
+        pr, dp = pressure(J[p], E[p], kind, rho0, c0, s, gamma0, K)
+        c = math.sqrt(sound_speed_sq(J[p], pr, dp, kind, rho0, gamma0, shear))
+        tr_d = 0.0
+        for a in range(d):
+            tr_d += L[p, a, a]
+        v = effective_speed(c, tr_d, length, q1, q2)
+        if v > top:
+            top = v
+    return top
+
+
+class ImpactMaterial(Material):
+    """What the shock and J2 models share: deformation mode "L", an EOS or Hencky pressure
+    with artificial viscosity, the grid spacing for its length scale, failure messages."""
+
+    deformation = "L"
+
+    def __init__(self, spec, dim: int):
+        super().__init__(spec, dim)
+        self.failures: list[str] = []
+        self.length: float | None = None
+        self._bad_index = np.empty(MAX_REPORTED, dtype=np.int64)
+        self._bad_J = np.empty(MAX_REPORTED)
+
+    def configure(self, *, dx: float) -> None:
+        """The artificial viscosity's length l = dx (`eos`)."""
+        self.length = float(dx)
+
+    def viscosity_args(self) -> tuple[float, float, float]:
+        """(l, Q1, Q2) for the kernels; the simulation must have called `configure`."""
+        vol = self.volumetric_response
+        if vol.viscous and self.length is None:
+            raise RuntimeError(f"material {self.spec.name!r}: artificial viscosity needs the "
+                               f"grid spacing: call configure(dx=...) before stepping")
+        return (self.length or 0.0), vol.q1, vol.q2
+
+    def report(self, fields, nbad: int) -> None:
+        """Turn a kernel's failure count into messages in self.failures."""
+        if nbad:
+            k = min(nbad, MAX_REPORTED)
+            ids = fields["id"][self._bad_index[:k]] if "id" in fields else self._bad_index[:k]
+            self.failures += failure_messages(self.spec.name, ids, self._bad_J[:k], nbad,
+                                              self.volumetric_response)
+
+    def wave_speed(self) -> float:
+        """Rest P-wave speed sqrt(c^2) of `eos.sound_speed_sq` at J = 1, E = 0."""
+        vol = self.volumetric_response
+        dp = vol.K  # dp/dzeta at rest, both kinds
+        return math.sqrt((dp + self.shear_term) / self.density)
+
+    def max_wave_speed(self, fields) -> float:
+        """Largest state-dependent speed on this slice, artificial viscosity included."""
+        if len(fields["J"]) == 0:
+            return 0.0
+        return float(max_effective_speed(fields["L"], fields["J"], fields["E"],
+                                         self.shear_term, *self.volumetric_response.args,
+                                         *self.viscosity_args()))
+
+    def energy(self, fields) -> float:
+        """sum_p vol0_p E_p: the internal energy (elastic and dissipated) of the slice."""
+        return float(np.dot(fields["vol0"], fields["E"]))
+
+
+class ShockModel(ImpactMaterial):
+    """003 §7.2.2 shock-wave effects model (module docstring)."""
+
+    name = "shock"
+    parameters = {
+        "E": Param(0.0, math.inf, low_inclusive=True,
+                   doc="Young's modulus of the shear response (0: a fluid)"),
+        "nu": POISSON,
+        "theta_c": Param(0.0, 1.0, required=False, low_inclusive=True,
+                         doc="snow clamp: singular values of F_E >= 1 - theta_c; none if absent"),
+        "theta_s": Param(0.0, math.inf, required=False, low_inclusive=True,
+                         doc="snow clamp: singular values of F_E <= 1 + theta_s; none if absent"),
+        "eos": Param(schema=EOS_SCHEMA, doc="equation of state table"),
+        **VISCOSITY_PARAMS,
+    }
+    fields = {"F_E": FieldSpec(TENSOR, "f8", "identity"), "J": FieldSpec(SCALAR, "f8", 1.0),
+              "E": FieldSpec(SCALAR, "f8", 0.0), "pressure": FieldSpec(SCALAR, "f8", 0.0)}
+    uses_svd = True
+
+    def __init__(self, spec, dim: int):
+        super().__init__(spec, dim)
+        q = self.params
+        self.mu, self.lam = lame(q["E"], q["nu"])
+        d = float(dim)
+        # The stable Neo-Hookean reparameterisation (stable_neo_hookean): the deviator of the
+        # energy's mu d/(d+1) (H + H^T) is 2 mu_LE dev(eps), so shear waves travel at
+        # sqrt(mu_LE / rho) as in every other model given E, nu.
+        self.mu_energy = (d + 1.0) / d * self.mu
+        self.shear_term = 2.0 * (d - 1.0) / d * self.mu
+        self.volumetric_response = Volumetric(q["eos"], self.density, 0.0, q["q1"], q["q2"])
+        self.clamp = q["theta_c"] is not None or q["theta_s"] is not None
+        self.lower = -math.inf if q["theta_c"] is None else 1.0 - q["theta_c"]
+        self.upper = math.inf if q["theta_s"] is None else 1.0 + q["theta_s"]
+        self.uses_svd = self.clamp
+        self._state = _update_state_2d if dim == 2 else _update_state_3d
+        self._stress = _stress_2d if dim == 2 else _stress_3d
+
+    def update_state(self, fields, dt: float) -> None:
+        """Advance F_E (clamped), J, E and pressure over dt from fields["L"]."""
+        nbad = self._state(fields["L"], fields["F_E"], fields["J"], fields["E"],
+                           fields["pressure"], dt, self.mu_energy, self.shear_term,
+                           self.clamp, self.lower, self.upper, *self.volumetric_response.args,
+                           *self.viscosity_args(), self._bad_index, self._bad_J)
+        self.report(fields, nbad)
+
+    def update_stress(self, fields, dt: float) -> None:
+        """Write fields["tau"] (n, d, d) = J sigma from the state and the stored L."""
+        self._stress(fields["L"], fields["F_E"], fields["J"], fields["E"], fields["tau"],
+                     self.mu_energy, self.shear_term, *self.volumetric_response.args,
+                     *self.viscosity_args())
