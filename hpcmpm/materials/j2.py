@@ -200,14 +200,14 @@ def _update_state_2d(L, S, Szz, J, E, P, EPS, T, dt, mu, hardening, thermal, met
         r01 = (c * c - sn * sn) * s[1] + c * sn * (s[3] - s[0])
         rzz = Szz[p]
         tr_d = d00 + d11
-        third = tr_d / 3.0
-        t00 = r00 + 2.0 * mu * dt * (d00 - third)
-        t11 = r11 + 2.0 * mu * dt * (d11 - third)
+        # dev D of the plane-strain D (D_zz = 0), differences so a dilatation gives exact 0
+        e00, e11, ezz = (2.0 * d00 - d11) / 3.0, (2.0 * d11 - d00) / 3.0, -tr_d / 3.0
+        t00 = r00 + 2.0 * mu * dt * e00
+        t11 = r11 + 2.0 * mu * dt * e11
         t01 = r01 + 2.0 * mu * dt * d01
-        tzz = rzz - 2.0 * mu * dt * third
+        tzz = rzz + 2.0 * mu * dt * ezz
         s_eq = math.sqrt(1.5 * (t00 * t00 + t11 * t11 + tzz * tzz + 2.0 * t01 * t01))
         theta = thermal_factor(T[p], T_room, T_melt, m) if thermal else 1.0
-        e00, e11, ezz = d00 - third, d11 - third, -third
         rate = math.sqrt(2.0 / 3.0 * (e00 * e00 + e11 * e11 + ezz * ezz + 2.0 * d01 * d01))
         dep, sy = _plastic_step(s_eq, EPS[p], dt, rate, mu3, A, B, n, C, eps_dot0, theta,
                                 method)
@@ -293,10 +293,10 @@ def _update_state_3d(L, S, Szz, J, E, P, EPS, T, dt, mu, hardening, thermal, met
         R = cayley3(h * (l[1] - l[3]), h * (l[2] - l[6]), h * (l[5] - l[7]))
         r = _rotate3(R, load3(S, p))
         tr_d = l[0] + l[4] + l[8]
-        third = tr_d / 3.0
-        e = (l[0] - third, 0.5 * (l[1] + l[3]), 0.5 * (l[2] + l[6]),
-             0.5 * (l[1] + l[3]), l[4] - third, 0.5 * (l[5] + l[7]),
-             0.5 * (l[2] + l[6]), 0.5 * (l[5] + l[7]), l[8] - third)  # dev D
+        # dev D, diagonal as differences so a dilatation gives exact 0
+        e = ((2.0 * l[0] - l[4] - l[8]) / 3.0, 0.5 * (l[1] + l[3]), 0.5 * (l[2] + l[6]),
+             0.5 * (l[1] + l[3]), (2.0 * l[4] - l[0] - l[8]) / 3.0, 0.5 * (l[5] + l[7]),
+             0.5 * (l[2] + l[6]), 0.5 * (l[5] + l[7]), (2.0 * l[8] - l[0] - l[4]) / 3.0)
         k2 = 2.0 * mu * dt
         t = (r[0] + k2 * e[0], r[1] + k2 * e[1], r[2] + k2 * e[2],
              r[3] + k2 * e[3], r[4] + k2 * e[4], r[5] + k2 * e[5],

@@ -57,10 +57,11 @@ def snh_dev_cauchy_3d(f, mu):
     ic = frob3(f)
     m = mu * ic / ((ic + 1.0) * det3(f))
     b = mul3_bt(f, f)
-    h = (b[0] + b[4] + b[8]) / 3.0
-    return (m * (b[0] - h), m * b[1], m * b[2],
-            m * b[3], m * (b[4] - h), m * b[5],
-            m * b[6], m * b[7], m * (b[8] - h))
+    # Each diagonal entry as a difference of the others, so an isotropic b gives an exact 0.
+    third = m / 3.0
+    return (third * (2.0 * b[0] - b[4] - b[8]), m * b[1], m * b[2],
+            m * b[3], third * (2.0 * b[4] - b[0] - b[8]), m * b[5],
+            m * b[6], m * b[7], third * (2.0 * b[8] - b[0] - b[4]))
 
 
 @njit(cache=True, inline="always")
