@@ -146,6 +146,38 @@ def energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s, gamma0, K):
     return E1, pc1 + g * E1
 
 
+@njit(cache=True, inline="always")
+def volume_step(J0, E0, tr_d, dt, s_dot_d, shear, kind, rho0, c0, s, gamma0, K, length, q1,
+                q2):
+    """(J^{n+1}, E^{n+1}, p^{n+1}) over dt: J <- J exp(dt tr D) (exact for a rigid spin), q
+    from the start-of-step sound speed, the trapezoidal energy balance with the deviatoric
+    work dt J_mid s:D (``s_dot_d`` = s:D). p is NaN where the EOS failed."""
+    J1 = J0 * math.exp(dt * tr_d)
+    p0, dp0 = pressure(J0, E0, kind, rho0, c0, s, gamma0, K)
+    c = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
+    q = artificial_viscosity(rho0 / J1, tr_d, c, length, q1, q2)
+    w_dev = dt * 0.5 * (J0 + J1) * s_dot_d
+    E1, p1 = energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s, gamma0, K)
+    return J1, E1, p1
+
+
+@njit(cache=True, inline="always")
+def record_failure(p, J1, nbad, bad_index, bad_J):
+    """Note particle row p (its J1) among the first reported failures; returns nbad + 1."""
+    if nbad < bad_index.shape[0]:
+        bad_index[nbad] = p
+        bad_J[nbad] = J1
+    return nbad + 1
+
+
+@njit(cache=True, inline="always")
+def total_pressure(J, E, tr_d, shear, kind, rho0, c0, s, gamma0, K, length, q1, q2):
+    """p(J, E) + q(tr D): the isotropic part of -sigma for the stress kernels."""
+    pr, dp = pressure(J, E, kind, rho0, c0, s, gamma0, K)
+    c = math.sqrt(sound_speed_sq(J, pr, dp, kind, rho0, gamma0, shear))
+    return pr + artificial_viscosity(rho0 / J, tr_d, c, length, q1, q2)
+
+
 @njit(cache=True)
 def pressure_batch(J, E, kind, rho0, c0, s, gamma0, K, p, dp_dzeta):
     """p and dp/dzeta for arrays J, E (n,) (diagnostics and tests)."""

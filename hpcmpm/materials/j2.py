@@ -53,8 +53,8 @@ from numba import njit
 from ..errors import SceneError
 from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, YOUNG, Param, lame
-from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, artificial_viscosity, energy_update,
-                  pressure, sound_speed_sq)
+from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
+                  volume_step)
 from .shock import ImpactMaterial
 from .tensors import load2, load3, store2, store3
 
@@ -217,19 +217,12 @@ def _update_state_2d(L, S, Szz, J, E, P, EPS, T, dt, mu, hardening, thermal, met
             t11 *= k
             t01 *= k
             tzz *= k
-        J0, E0 = J[p], E[p]
-        J1 = J0 * math.exp(dt * tr_d)
+        # s:D at the midpoint of the step (s_zz D_zz = 0 in plane strain)
         work = 0.5 * ((r00 + t00) * d00 + (r11 + t11) * d11 + 2.0 * (r01 + t01) * d01)
-        w_dev = dt * 0.5 * (J0 + J1) * work
-        p0, dp0 = pressure(J0, E0, kind, rho0, c0, s_, gamma0, K)
-        cs = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
-        q = artificial_viscosity(rho0 / J1, tr_d, cs, length, q1, q2)
-        E1, p1 = energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s_, gamma0, K)
+        J1, E1, p1 = volume_step(J[p], E[p], tr_d, dt, work, shear, kind, rho0, c0, s_, gamma0,
+                                 K, length, q1, q2)
         if not math.isfinite(p1):
-            if nbad < bad_index.shape[0]:
-                bad_index[nbad] = p
-                bad_J[nbad] = J1
-            nbad += 1
+            nbad = record_failure(p, J1, nbad, bad_index, bad_J)
             J[p] = math.nan
             continue
         store2(S, p, (t00, t01, t01, t11))
@@ -315,21 +308,13 @@ def _update_state_3d(L, S, Szz, J, E, P, EPS, T, dt, mu, hardening, thermal, met
             k = sy / s_eq if method == LINEARIZED else 1.0 - mu3 * dep / s_eq
             t = (k * t[0], k * t[1], k * t[2], k * t[3], k * t[4], k * t[5],
                  k * t[6], k * t[7], k * t[8])
-        J0, E0 = J[p], E[p]
-        J1 = J0 * math.exp(dt * tr_d)
         work = 0.0
         for k in range(9):
             work += (r[k] + t[k]) * e[k]  # s:D = s:dev D for deviatoric s
-        w_dev = dt * 0.5 * (J0 + J1) * 0.5 * work
-        p0, dp0 = pressure(J0, E0, kind, rho0, c0, s_, gamma0, K)
-        cs = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
-        q = artificial_viscosity(rho0 / J1, tr_d, cs, length, q1, q2)
-        E1, p1 = energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s_, gamma0, K)
+        J1, E1, p1 = volume_step(J[p], E[p], tr_d, dt, 0.5 * work, shear, kind, rho0, c0, s_,
+                                 gamma0, K, length, q1, q2)
         if not math.isfinite(p1):
-            if nbad < bad_index.shape[0]:
-                bad_index[nbad] = p
-                bad_J[nbad] = J1
-            nbad += 1
+            nbad = record_failure(p, J1, nbad, bad_index, bad_J)
             J[p] = math.nan
             continue
         store3(S, p, t)
@@ -348,9 +333,8 @@ def _stress_2d(L, S, J, E, tau, shear, kind, rho0, c0, s_, gamma0, K, length, q1
     """tau = J (s - (p + q) I), in plane, (n, 2, 2)."""
     for p in range(J.shape[0]):
         Jp = J[p]
-        pr, dp = pressure(Jp, E[p], kind, rho0, c0, s_, gamma0, K)
-        c = math.sqrt(sound_speed_sq(Jp, pr, dp, kind, rho0, gamma0, shear))
-        pq = pr + artificial_viscosity(rho0 / Jp, L[p, 0, 0] + L[p, 1, 1], c, length, q1, q2)
+        pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1], shear, kind, rho0, c0, s_,
+                            gamma0, K, length, q1, q2)
         s = load2(S, p)
         store2(tau, p, (Jp * (s[0] - pq), Jp * s[1], Jp * s[2], Jp * (s[3] - pq)))
 
@@ -360,10 +344,8 @@ def _stress_3d(L, S, J, E, tau, shear, kind, rho0, c0, s_, gamma0, K, length, q1
     """tau = J (s - (p + q) I), (n, 3, 3)."""
     for p in range(J.shape[0]):
         Jp = J[p]
-        pr, dp = pressure(Jp, E[p], kind, rho0, c0, s_, gamma0, K)
-        c = math.sqrt(sound_speed_sq(Jp, pr, dp, kind, rho0, gamma0, shear))
-        pq = pr + artificial_viscosity(rho0 / Jp, L[p, 0, 0] + L[p, 1, 1] + L[p, 2, 2], c,
-                                       length, q1, q2)
+        pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1] + L[p, 2, 2], shear, kind, rho0,
+                            c0, s_, gamma0, K, length, q1, q2)
         s = load3(S, p)
         store3(tau, p, (Jp * (s[0] - pq), Jp * s[1], Jp * s[2],
                         Jp * s[3], Jp * (s[4] - pq), Jp * s[5],

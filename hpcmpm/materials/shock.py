@@ -34,8 +34,9 @@ from numba import njit
 from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, Material, Param, lame
 from .decompositions import svd2, svd3
-from .eos import (EOS_SCHEMA, MAX_REPORTED, VISCOSITY_PARAMS, Volumetric, artificial_viscosity,
-                  effective_speed, energy_update, failure_messages, pressure, sound_speed_sq)
+from .eos import (EOS_SCHEMA, MAX_REPORTED, VISCOSITY_PARAMS, Volumetric, effective_speed,
+                  failure_messages, pressure, record_failure, sound_speed_sq, total_pressure,
+                  volume_step)
 from .tensors import det2, det3, frob2, frob3, load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
 
 
@@ -85,20 +86,12 @@ def _update_state_2d(L, F_E, J, E, P, dt, mu, shear, clamp, lo, hi, kind, rho0, 
             if c0_ != s0 or c1_ != s1:
                 fe = mul2_bt((U[0] * c0_, U[1] * c1_, U[2] * c0_, U[3] * c1_), V)
         store2(F_E, p, fe)
-        tr_d = l[0] + l[3]
-        J0, E0 = J[p], E[p]
-        J1 = J0 * math.exp(dt * tr_d)
         sd = snh_dev_cauchy_2d(fe, mu)
-        w_dev = dt * 0.5 * (J0 + J1) * (sd[0] * l[0] + sd[1] * l[1] + sd[2] * l[2] + sd[3] * l[3])
-        p0, dp0 = pressure(J0, E0, kind, rho0, c0, s, gamma0, K)
-        c = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
-        q = artificial_viscosity(rho0 / J1, tr_d, c, length, q1, q2)
-        E1, p1 = energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s, gamma0, K)
+        J1, E1, p1 = volume_step(J[p], E[p], l[0] + l[3], dt,
+                                 sd[0] * l[0] + sd[1] * l[1] + sd[2] * l[2] + sd[3] * l[3],
+                                 shear, kind, rho0, c0, s, gamma0, K, length, q1, q2)
         if not math.isfinite(p1):
-            if nbad < bad_index.shape[0]:
-                bad_index[nbad] = p
-                bad_J[nbad] = J1
-            nbad += 1
+            nbad = record_failure(p, J1, nbad, bad_index, bad_J)
             J[p] = math.nan
             continue
         J[p] = J1
@@ -126,23 +119,14 @@ def _update_state_3d(L, F_E, J, E, P, dt, mu, shear, clamp, lo, hi, kind, rho0, 
                               U[3] * a0, U[4] * a1, U[5] * a2,
                               U[6] * a0, U[7] * a1, U[8] * a2), V)
         store3(F_E, p, fe)
-        tr_d = l[0] + l[4] + l[8]
-        J0, E0 = J[p], E[p]
-        J1 = J0 * math.exp(dt * tr_d)
         sd = snh_dev_cauchy_3d(fe, mu)
         work = 0.0
         for k in range(9):
             work += sd[k] * l[k]
-        w_dev = dt * 0.5 * (J0 + J1) * work
-        p0, dp0 = pressure(J0, E0, kind, rho0, c0, s, gamma0, K)
-        c = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
-        q = artificial_viscosity(rho0 / J1, tr_d, c, length, q1, q2)
-        E1, p1 = energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s, gamma0, K)
+        J1, E1, p1 = volume_step(J[p], E[p], l[0] + l[4] + l[8], dt, work, shear, kind, rho0,
+                                 c0, s, gamma0, K, length, q1, q2)
         if not math.isfinite(p1):
-            if nbad < bad_index.shape[0]:
-                bad_index[nbad] = p
-                bad_J[nbad] = J1
-            nbad += 1
+            nbad = record_failure(p, J1, nbad, bad_index, bad_J)
             J[p] = math.nan
             continue
         J[p] = J1
@@ -158,10 +142,8 @@ def _stress_2d(L, F_E, J, E, tau, mu, shear, kind, rho0, c0, s, gamma0, K, lengt
     for p in range(J.shape[0]):
         sd = snh_dev_cauchy_2d(load2(F_E, p), mu)
         Jp = J[p]
-        pr, dp = pressure(Jp, E[p], kind, rho0, c0, s, gamma0, K)
-        c = math.sqrt(sound_speed_sq(Jp, pr, dp, kind, rho0, gamma0, shear))
-        tr_d = L[p, 0, 0] + L[p, 1, 1]
-        pq = pr + artificial_viscosity(rho0 / Jp, tr_d, c, length, q1, q2)
+        pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1], shear, kind, rho0, c0, s,
+                            gamma0, K, length, q1, q2)
         store2(tau, p, (Jp * (sd[0] - pq), Jp * sd[1], Jp * sd[2], Jp * (sd[3] - pq)))
 
 
@@ -171,10 +153,8 @@ def _stress_3d(L, F_E, J, E, tau, mu, shear, kind, rho0, c0, s, gamma0, K, lengt
     for p in range(J.shape[0]):
         sd = snh_dev_cauchy_3d(load3(F_E, p), mu)
         Jp = J[p]
-        pr, dp = pressure(Jp, E[p], kind, rho0, c0, s, gamma0, K)
-        c = math.sqrt(sound_speed_sq(Jp, pr, dp, kind, rho0, gamma0, shear))
-        tr_d = L[p, 0, 0] + L[p, 1, 1] + L[p, 2, 2]
-        pq = pr + artificial_viscosity(rho0 / Jp, tr_d, c, length, q1, q2)
+        pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1] + L[p, 2, 2], shear, kind, rho0,
+                            c0, s, gamma0, K, length, q1, q2)
         store3(tau, p, (Jp * (sd[0] - pq), Jp * sd[1], Jp * sd[2],
                         Jp * sd[3], Jp * (sd[4] - pq), Jp * sd[5],
                         Jp * sd[6], Jp * sd[7], Jp * (sd[8] - pq)))

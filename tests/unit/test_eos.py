@@ -4,7 +4,6 @@ impact models (hpcmpm/materials/eos.py; 003 §7.2.3 with the issue's corrections
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -14,18 +13,15 @@ from hpcmpm.materials import make_material, validate_params
 from hpcmpm.materials.driver import MaterialPoint
 from hpcmpm.materials.eos import (MIN_DENOMINATOR, Volumetric, artificial_viscosity,
                                   effective_speed, energy_update, pressure, sound_speed_sq)
+from hpcmpm.scene import MaterialSpec
 
 # OFHC copper (Marsh, LASL Shock Hugoniot Data 1980; the values).
 RHO0, C0, S, GAMMA0 = 8930.0, 3940.0, 1.49, 2.0
 CU_EOS = {"type": "mie_gruneisen", "c0": C0, "s": S, "gamma0": GAMMA0}
 
 
-@dataclass
-class Spec:
-    type: str
-    params: dict
-    density: float = RHO0
-    name: str = "cu"
+def spec(type_: str, params: dict) -> MaterialSpec:
+    return MaterialSpec("cu", type_, RHO0, params)
 
 
 def cu() -> Volumetric:
@@ -126,7 +122,7 @@ def test_energy_update_lands_on_the_hugoniot(u_p):
 
 def shock_point(dim: int, n: int = 1, **extra) -> MaterialPoint:
     params = {"E": 0.0, "nu": 0.3, "eos": CU_EOS, **extra}
-    return MaterialPoint(make_material(Spec("shock", params), dim), n, dx=1e-3)
+    return MaterialPoint(make_material(spec("shock", params), dim), n, dx=1e-3)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -169,17 +165,17 @@ def test_parameter_errors_are_one_line_each():
     assert validate_params("j2", {"E": 1e9, "nu": 0.3, "hardening": {**jc, "AA": 1}}) == \
         ["hardening.AA: unknown key (did you mean 'A'?)"]
     with pytest.raises(SceneError, match="hardening.T_melt: missing"):
-        make_material(Spec("j2", {"E": 1e9, "nu": 0.3, "hardening": jc,
+        make_material(spec("j2", {"E": 1e9, "nu": 0.3, "hardening": jc,
                                   "specific_heat": 383.0}), 3)
 
 
 def test_defaults_of_the_eos_and_viscosity():
-    mat = make_material(Spec("shock", {"E": 1e9, "nu": 0.3,
+    mat = make_material(spec("shock", {"E": 1e9, "nu": 0.3,
                                        "eos": {"type": "mie_gruneisen", "c0": 2092.0}}), 3)
     vol = mat.volumetric_response
     assert (vol.s, vol.gamma0, vol.q1, vol.q2) == (1.1, 1.6, 1.5, 0.06)  # 003 §7.2.3
     jc = {"type": "johnson_cook", "A": 1e6}
-    plain = make_material(Spec("j2", {"E": 1e9, "nu": 0.3, "hardening": jc}), 3)
+    plain = make_material(spec("j2", {"E": 1e9, "nu": 0.3, "hardening": jc}), 3)
     assert not plain.volumetric_response.viscous  # no EOS: no viscosity unless asked
     # Without configure(dx=...) a viscous model refuses to run rather than use l = 0.
     with pytest.raises(RuntimeError, match="configure"):

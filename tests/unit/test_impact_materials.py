@@ -4,7 +4,6 @@ Johnson-Cook hardening (003 §7.3, appendix B); hpcmpm/materials/shock.py, j2.py
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from hpcmpm.materials import lame, make_material
 from hpcmpm.materials.driver import MaterialPoint
 from hpcmpm.materials.eos import pressure
 from hpcmpm.materials.j2 import cayley3, jc_yield, thermal_factor
+from hpcmpm.scene import MaterialSpec
 
 DIMS = (2, 3)
 RHO0 = 8930.0
@@ -23,30 +23,18 @@ JC_CU = {"type": "johnson_cook", "A": 90e6, "B": 292e6, "n": 0.31, "C": 0.025, "
          "T_melt": 1356.0, "T_room": 293.0}
 
 
-@dataclass
-class Spec:
-    type: str
-    params: dict
-    density: float = RHO0
-    name: str = "m"
+def spec(type_: str, params: dict) -> MaterialSpec:
+    return MaterialSpec("m", type_, RHO0, params)
 
 
 def shock(dim: int, n: int = 1, **extra) -> MaterialPoint:
     params = {"E": 2e9, "nu": 0.3, "eos": CU_EOS, **extra}
-    return MaterialPoint(make_material(Spec("shock", params), dim), n, dx=1e-3)
+    return MaterialPoint(make_material(spec("shock", params), dim), n, dx=1e-3)
 
 
 def j2(dim: int, n: int = 1, **extra) -> MaterialPoint:
     params = {"E": E_CU, "nu": NU_CU, "hardening": JC_CU, **extra}
-    return MaterialPoint(make_material(Spec("j2", params), dim), n, dx=1e-3)
-
-
-def random_rotation(rng, d: int) -> np.ndarray:
-    Q, R = np.linalg.qr(rng.normal(size=(d, d)))
-    Q = Q * np.sign(np.diag(R))
-    if np.linalg.det(Q) < 0:
-        Q[:, 0] *= -1
-    return Q
+    return MaterialPoint(make_material(spec("j2", params), dim), n, dx=1e-3)
 
 
 # -- shock model -----------------------------------------------------------------------------

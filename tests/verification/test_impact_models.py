@@ -4,13 +4,13 @@ under uniaxial stress at a constant strain rate (003 §7.3, appendix B)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
 from hpcmpm.materials import make_material
 from hpcmpm.materials.driver import MaterialPoint
+from hpcmpm.scene import MaterialSpec
 
 # Wilkins & Guinan 1973 OFHC copper, Johnson & Cook 1983 constants (the issue's Taylor bar).
 RHO0, E_CU, NU_CU = 8960.0, 124e9, 0.34
@@ -18,12 +18,8 @@ A, B, N, C = 90e6, 292e6, 0.31, 0.025
 JC_CU = {"type": "johnson_cook", "A": A, "B": B, "n": N, "C": C, "eps_dot0": 1.0}
 
 
-@dataclass
-class Spec:
-    type: str
-    params: dict
-    density: float = RHO0
-    name: str = "cu"
+def spec(type_: str, params: dict) -> MaterialSpec:
+    return MaterialSpec("cu", type_, RHO0, params)
 
 
 def uniaxial_stress(return_map: str, rate: float = 1e3, eps_end: float = 0.55,
@@ -31,7 +27,7 @@ def uniaxial_stress(return_map: str, rate: float = 1e3, eps_end: float = 0.55,
     """Drive one point with L = diag(rate, a, a), a chosen each step (secant iteration) so the
     lateral stress vanishes: uniaxial stress at a constant axial strain rate. Returns the
     equivalent plastic strain and the axial stress after each step."""
-    mat = make_material(Spec("j2", {"E": E_CU, "nu": NU_CU, "hardening": JC_CU,
+    mat = make_material(spec("j2", {"E": E_CU, "nu": NU_CU, "hardening": JC_CU,
                                     "return_map": return_map}), 3)
     mp = MaterialPoint(mat, 1, dx=1.0)
     dt = eps_end / rate / steps
