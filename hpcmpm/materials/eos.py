@@ -147,12 +147,13 @@ def energy_update(p0, J0, J1, E0, w_dev, q, kind, rho0, c0, s, gamma0, K):
 
 
 @njit(cache=True, inline="always")
-def volume_step(J0, E0, tr_d, dt, s_dot_d, shear, kind, rho0, c0, s, gamma0, K, length, q1,
-                q2):
-    """(J^{n+1}, E^{n+1}, p^{n+1}) over dt: J <- J exp(dt tr D) (exact for a rigid spin), q
-    from the start-of-step sound speed, the trapezoidal energy balance with the deviatoric
-    work dt J_mid s:D (``s_dot_d`` = s:D). p is NaN where the EOS failed."""
-    J1 = J0 * math.exp(dt * tr_d)
+def volume_step(J0, E0, ratio, tr_d, dt, s_dot_d, shear, kind, rho0, c0, s, gamma0, K, length,
+                q1, q2):
+    """(J^{n+1}, E^{n+1}, p^{n+1}) over dt: J <- det(I + dt L) J (``ratio``; the volume change
+    of the step's map x + dt v(x), as the engine advances F), q from the start-of-step sound
+    speed, the trapezoidal energy balance with the deviatoric work dt J_mid s:D (``s_dot_d``
+    = s:D). p is NaN where the EOS failed (or J <= 0)."""
+    J1 = J0 * ratio
     p0, dp0 = pressure(J0, E0, kind, rho0, c0, s, gamma0, K)
     c = math.sqrt(sound_speed_sq(J0, p0, dp0, kind, rho0, gamma0, shear))
     q = artificial_viscosity(rho0 / J1, tr_d, c, length, q1, q2)

@@ -34,7 +34,8 @@ start-of-step T (explicit in T).
 
 Pressure: sigma = s - (p + q) I with p from the ``eos`` (Mie-Grüneisen of J, E) or, without
 one, p = -K ln J (K = lam + 2 mu/3); q the artificial viscosity; E by the energy balance of
-`eos`. J <- J exp(dt tr L).
+`eos`. J <- det(I + dt L) J, as the engine advances F (so a rigid spin, whose forward-Euler
+map spreads the particles by 1 + dt^2 |W|^2, changes J with them while |s| is kept).
 
 2D is plane strain: the out-of-plane deviator s_zz is a field of its own (dev D has the
 component -tr D/3 along z), the yield criterion and the energy use all of s.
@@ -56,7 +57,7 @@ from .base import POISSON, YOUNG, Param, lame
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
 from .shock import ImpactMaterial
-from .tensors import load2, load3, store2, store3
+from .tensors import det3, load2, load3, store2, store3
 
 NEWTON, LINEARIZED = 0, 1
 RETURN_TOL = 1.0e-10
@@ -219,8 +220,9 @@ def _update_state_2d(L, S, Szz, J, E, P, EPS, T, dt, mu, hardening, thermal, met
             tzz *= k
         # s:D at the midpoint of the step (s_zz D_zz = 0 in plane strain)
         work = 0.5 * ((r00 + t00) * d00 + (r11 + t11) * d11 + 2.0 * (r01 + t01) * d01)
-        J1, E1, p1 = volume_step(J[p], E[p], tr_d, dt, work, shear, kind, rho0, c0, s_, gamma0,
-                                 K, length, q1, q2)
+        ratio = (1.0 + dt * l[0]) * (1.0 + dt * l[3]) - dt * dt * l[1] * l[2]
+        J1, E1, p1 = volume_step(J[p], E[p], ratio, tr_d, dt, work, shear, kind, rho0, c0, s_,
+                                 gamma0, K, length, q1, q2)
         if not math.isfinite(p1):
             nbad = record_failure(p, J1, nbad, bad_index, bad_J)
             J[p] = math.nan
@@ -311,8 +313,11 @@ def _update_state_3d(L, S, Szz, J, E, P, EPS, T, dt, mu, hardening, thermal, met
         work = 0.0
         for k in range(9):
             work += (r[k] + t[k]) * e[k]  # s:D = s:dev D for deviatoric s
-        J1, E1, p1 = volume_step(J[p], E[p], tr_d, dt, 0.5 * work, shear, kind, rho0, c0, s_,
-                                 gamma0, K, length, q1, q2)
+        ratio = det3((1.0 + dt * l[0], dt * l[1], dt * l[2],
+                      dt * l[3], 1.0 + dt * l[4], dt * l[5],
+                      dt * l[6], dt * l[7], 1.0 + dt * l[8]))
+        J1, E1, p1 = volume_step(J[p], E[p], ratio, tr_d, dt, 0.5 * work, shear, kind, rho0, c0,
+                                 s_, gamma0, K, length, q1, q2)
         if not math.isfinite(p1):
             nbad = record_failure(p, J1, nbad, bad_index, bad_J)
             J[p] = math.nan

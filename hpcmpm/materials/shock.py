@@ -16,8 +16,8 @@ rho0 c0^2 + 4/3 mu in 3D.
 
 Deformation mode "L": `update_state` advances the particle's own state from the step's
 velocity gradient L (fields["L"]): F_E <- (I + dt L) F_E then the clamp,
-J <- J exp(dt tr L) (exact for rigid spin, where det(I + dt L) = 1 + dt^2 |W|^2 drifts), and
-E, p by the energy balance of `eos`. `update_stress` writes tau from that state and the stored
+J <- det(I + dt L) J (the volume change of the step's map x + dt v(x), as the engine advances
+F: a density consistent with where the particles go), and E, p by the energy balance of `eos`. `update_stress` writes tau from that state and the stored
 L (for q), changing nothing.
 
 Fields: F_E (elastic deformation gradient), J (total volume ratio), E (internal energy per
@@ -87,7 +87,8 @@ def _update_state_2d(L, F_E, J, E, P, dt, mu, shear, clamp, lo, hi, kind, rho0, 
                 fe = mul2_bt((U[0] * c0_, U[1] * c1_, U[2] * c0_, U[3] * c1_), V)
         store2(F_E, p, fe)
         sd = snh_dev_cauchy_2d(fe, mu)
-        J1, E1, p1 = volume_step(J[p], E[p], l[0] + l[3], dt,
+        ratio = (1.0 + dt * l[0]) * (1.0 + dt * l[3]) - dt * dt * l[1] * l[2]
+        J1, E1, p1 = volume_step(J[p], E[p], ratio, l[0] + l[3], dt,
                                  sd[0] * l[0] + sd[1] * l[1] + sd[2] * l[2] + sd[3] * l[3],
                                  shear, kind, rho0, c0, s, gamma0, K, length, q1, q2)
         if not math.isfinite(p1):
@@ -123,8 +124,8 @@ def _update_state_3d(L, F_E, J, E, P, dt, mu, shear, clamp, lo, hi, kind, rho0, 
         work = 0.0
         for k in range(9):
             work += sd[k] * l[k]
-        J1, E1, p1 = volume_step(J[p], E[p], l[0] + l[4] + l[8], dt, work, shear, kind, rho0,
-                                 c0, s, gamma0, K, length, q1, q2)
+        J1, E1, p1 = volume_step(J[p], E[p], det3(A), l[0] + l[4] + l[8], dt, work, shear,
+                                 kind, rho0, c0, s, gamma0, K, length, q1, q2)
         if not math.isfinite(p1):
             nbad = record_failure(p, J1, nbad, bad_index, bad_J)
             J[p] = math.nan

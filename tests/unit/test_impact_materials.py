@@ -97,8 +97,8 @@ def test_shock_model_clamp_bounds_elastic_stretch(dim):
     sv = np.linalg.svd(mp.fields["F_E"][0], compute_uv=False)
     # Clamped to the interval up to the round-off of rebuilding U Sigma V^T.
     assert sv.max() <= 1.015 + 1e-14 and sv.min() >= 0.95 - 1e-14
-    # The volume is not clamped: J follows exp(t tr L).
-    assert mp.fields["J"][0] == pytest.approx(math.exp(200 * 1e-6 * 2e3), rel=1e-12)
+    # The volume is not clamped: J = det(I + dt L)^steps (200 products: 1e-13).
+    assert mp.fields["J"][0] == pytest.approx((1 + 1e-6 * 2e3) ** 200, rel=1e-13)
 
 
 @pytest.mark.parametrize("dim", DIMS)
@@ -106,12 +106,14 @@ def test_shock_model_energy_is_the_stress_work(dim):
     """A slow compress-release cycle without viscosity: E returns to ~0 (the EOS part is
     reversible, the trapezoid second order: residual O(dt^2))."""
     mp = shock(dim, 1, q1=0.0, q2=0.0)
-    L = -1e3 * np.eye(dim) / dim
-    for sign in (1, -1):
+    dt = 1e-6
+    f = 1 - 1e3 * dt / dim  # each compression step scales lengths by f, each release by 1/f
+    for g in ((f - 1) / dt, (1 / f - 1) / dt):
         for _ in range(100):
-            mp.step(sign * L, 1e-6)
+            mp.step(g * np.eye(dim), dt)
     E_peak = 0.5 * RHO0 * 3940.0 ** 2 * 0.1 ** 2  # ~ K eps^2 / 2 at the 10 % squeeze
-    assert abs(mp.fields["J"][0] - 1) < 1e-14
+    # 200 determinants of d factors each: a few hundred roundings of 1.1e-16.
+    assert abs(mp.fields["J"][0] - 1) < 1e-13
     assert abs(mp.fields["E"][0]) < 1e-6 * E_peak
 
 
@@ -210,7 +212,7 @@ def test_quarter_turn_keeps_the_stress(dim):
     Q = np.eye(dim)
     Q[:2, :2] = [[0, -1], [1, 0]]
     assert np.allclose(s, Q @ s0 @ Q.T, rtol=0, atol=1e-12 * size0)
-    assert mp.fields["J"][0] == 1.0 and mp.fields["eps_p"][0] == 0.0
+    assert mp.fields["eps_p"][0] == 0.0
 
 
 @pytest.mark.parametrize("dim", DIMS)
@@ -226,7 +228,7 @@ def test_j2_small_strain_is_hookean(dim):
     sym = 0.5 * (H + H.T) * eps
     hooke = 2 * mu * (sym - np.trace(sym) / 3 * np.eye(dim)) + \
         (lam + 2 * mu / 3) * np.trace(sym) * np.eye(dim)
-    # Relative error O(eps) from ln J vs tr eps and the exp(dt tr L) update.
+    # Relative error O(eps) from ln J vs tr eps.
     assert np.abs(mp.cauchy()[0] - hooke).max() <= 10 * eps * np.abs(hooke).max()
 
 
@@ -246,14 +248,15 @@ def test_johnson_cook_yield_function():
 def test_adiabatic_heating():
     """dT = 0.9 sigma_y d eps_p/(rho c_v) (Johnson and Cook 1983), summed over the steps."""
     mp = j2(3, specific_heat=383.0)
-    L = np.diag([1e3, -0.5e3, -0.5e3])
-    work = 0.0
     dt = 1e-6
+    lateral = (1 / math.sqrt(1 + 1e3 * dt) - 1) / dt  # det(I + dt L) = 1: isochoric
+    L = np.diag([1e3, lateral, lateral])
+    work = 0.0
     for _ in range(200):
         e0, T0 = mp.fields["eps_p"][0], mp.fields["T"][0]
         mp.step(L, dt)
         d = mp.fields["eps_p"][0] - e0
         work += 0.9 * mp.material.yield_stress(mp.fields["eps_p"][0], d / dt, T0) * d
     assert mp.fields["eps_p"][0] > 0.1
-    # Isochoric: rho = rho0 exactly, so the sum is exact up to round-off.
+    # Isochoric: rho = rho0 (to round-off), so the sum is exact up to round-off.
     assert mp.fields["T"][0] - 293.0 == pytest.approx(work / (RHO0 * 383.0), rel=1e-12)
