@@ -56,7 +56,7 @@ from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, YOUNG, Param, lame
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
-from .shock import ImpactMaterial
+from .impact import ImpactMaterial
 from .tensors import det3, load2, load3, store2, store3
 
 NEWTON, LINEARIZED = 0, 1

@@ -17,8 +17,8 @@ rho0 c0^2 + 4/3 mu in 3D.
 Deformation mode "L": `update_state` advances the particle's own state from the step's
 velocity gradient L (fields["L"]): F_E <- (I + dt L) F_E then the clamp,
 J <- det(I + dt L) J (the volume change of the step's map x + dt v(x), as the engine advances
-F: a density consistent with where the particles go), and E, p by the energy balance of `eos`. `update_stress` writes tau from that state and the stored
-L (for q), changing nothing.
+F: a density consistent with where the particles go), and E, p by the energy balance of
+`eos`. `update_stress` writes tau from that state and the stored L (for q), changing nothing.
 
 Fields: F_E (elastic deformation gradient), J (total volume ratio), E (internal energy per
 reference volume), pressure (EOS pressure p, without q, for output).
@@ -28,16 +28,16 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
-from .base import POISSON, Material, Param, lame
+from .base import POISSON, Param, lame
 from .decompositions import svd2, svd3
-from .eos import (EOS_SCHEMA, MAX_REPORTED, VISCOSITY_PARAMS, Volumetric, effective_speed,
-                  failure_messages, pressure, record_failure, sound_speed_sq, total_pressure,
+from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
-from .tensors import det2, det3, frob2, frob3, load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
+from .impact import ImpactMaterial
+from .tensors import (det2, det3, frob2, frob3, load2, load3, mul2, mul2_bt, mul3, mul3_bt,
+                      store2, store3)
 
 
 # -- deviatoric Cauchy stress of the stable Neo-Hookean model ------------------------------
@@ -159,75 +159,6 @@ def _stress_3d(L, F_E, J, E, tau, mu, shear, kind, rho0, c0, s, gamma0, K, lengt
         store3(tau, p, (Jp * (sd[0] - pq), Jp * sd[1], Jp * sd[2],
                         Jp * sd[3], Jp * (sd[4] - pq), Jp * sd[5],
                         Jp * sd[6], Jp * sd[7], Jp * (sd[8] - pq)))
-
-
-@njit(cache=True)
-def max_effective_speed(L, J, E, shear, kind, rho0, c0, s, gamma0, K, length, q1, q2):
-    """max_p of the state-dependent speed Q + sqrt(Q^2 + c^2) (`eos`); L (n, d, d)."""
-    d = L.shape[1]
-    top = 0.0
-    for p in range(J.shape[0]):
-        pr, dp = pressure(J[p], E[p], kind, rho0, c0, s, gamma0, K)
-        c = math.sqrt(sound_speed_sq(J[p], pr, dp, kind, rho0, gamma0, shear))
-        tr_d = 0.0
-        for a in range(d):
-            tr_d += L[p, a, a]
-        v = effective_speed(c, tr_d, length, q1, q2)
-        if v > top:
-            top = v
-    return top
-
-
-class ImpactMaterial(Material):
-    """What the shock and J2 models share: deformation mode "L", an EOS or Hencky pressure
-    with artificial viscosity, the grid spacing for its length scale, failure messages."""
-
-    deformation = "L"
-
-    def __init__(self, spec, dim: int):
-        super().__init__(spec, dim)
-        self.failures: list[str] = []
-        self.length: float | None = None
-        self._bad_index = np.empty(MAX_REPORTED, dtype=np.int64)
-        self._bad_J = np.empty(MAX_REPORTED)
-
-    def configure(self, *, dx: float) -> None:
-        """The artificial viscosity's length l = dx (`eos`)."""
-        self.length = float(dx)
-
-    def viscosity_args(self) -> tuple[float, float, float]:
-        """(l, Q1, Q2) for the kernels; the simulation must have called `configure`."""
-        vol = self.volumetric_response
-        if vol.viscous and self.length is None:
-            raise RuntimeError(f"material {self.spec.name!r}: artificial viscosity needs the "
-                               f"grid spacing: call configure(dx=...) before stepping")
-        return (self.length or 0.0), vol.q1, vol.q2
-
-    def report(self, fields, nbad: int) -> None:
-        """Turn a kernel's failure count into messages in self.failures."""
-        if nbad:
-            k = min(nbad, MAX_REPORTED)
-            ids = fields["id"][self._bad_index[:k]] if "id" in fields else self._bad_index[:k]
-            self.failures += failure_messages(self.spec.name, ids, self._bad_J[:k], nbad,
-                                              self.volumetric_response)
-
-    def wave_speed(self) -> float:
-        """Rest P-wave speed sqrt(c^2) of `eos.sound_speed_sq` at J = 1, E = 0."""
-        vol = self.volumetric_response
-        dp = vol.K  # dp/dzeta at rest, both kinds
-        return math.sqrt((dp + self.shear_term) / self.density)
-
-    def max_wave_speed(self, fields) -> float:
-        """Largest state-dependent speed on this slice, artificial viscosity included."""
-        if len(fields["J"]) == 0:
-            return 0.0
-        return float(max_effective_speed(fields["L"], fields["J"], fields["E"],
-                                         self.shear_term, *self.volumetric_response.args,
-                                         *self.viscosity_args()))
-
-    def energy(self, fields) -> float:
-        """sum_p vol0_p E_p: the internal energy (elastic and dissipated) of the slice."""
-        return float(np.dot(fields["vol0"], fields["E"]))
 
 
 class ShockModel(ImpactMaterial):
