@@ -7,6 +7,8 @@ mode "L": store L, `update_state` (the state over dt), `update_stress` (tau from
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from ..errors import InstabilityError
@@ -15,11 +17,12 @@ from ..state import SCALAR, TENSOR, FieldSpec, ParticleSet
 
 class MaterialPoint:
     """``n`` material points of ``material`` (an "L"-mode model), all fields at their fill
-    values. ``fields`` maps names to (n, ...) views; ``dx`` is handed to `configure`."""
+    values. ``fields`` maps names to (n, ...) views; ``dx`` reaches the material through
+    `configure` as the grid spacing of a scene."""
 
     def __init__(self, material, n: int = 1, dx: float = 1.0):
         self.material = material
-        material.configure(dx=dx)
+        material.configure(SimpleNamespace(dx=dx))
         d = material.dim
         specs = {**material.fields, "L": FieldSpec(TENSOR), "tau": FieldSpec(TENSOR),
                  "J": FieldSpec(SCALAR, "f8", 1.0)}

@@ -53,7 +53,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Param
+from .base import Param, choice
 
 MIE_GRUNEISEN, LOG_BULK = 0, 1
 MIN_DENOMINATOR = 1.0e-2
@@ -61,7 +61,7 @@ MIN_DENOMINATOR = 1.0e-2
 MAX_REPORTED = 4
 
 EOS_SCHEMA = {
-    "type": Param(choices=("mie_gruneisen",), doc="equation of state"),
+    "type": choice(("mie_gruneisen",), doc="equation of state"),
     "c0": Param(0.0, math.inf, doc="bulk sound speed c0 (velocity units)"),
     "s": Param(1.0, math.inf, required=False, default=1.1,
                doc="Hugoniot slope S of U_s = c0 + S u_p (> 1; 003 §7.2.3: 1.1)"),

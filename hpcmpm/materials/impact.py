@@ -39,21 +39,20 @@ class ImpactMaterial(Material):
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
-        self.failures: list[str] = []
         self.length: float | None = None
         self._bad_index = np.empty(MAX_REPORTED, dtype=np.int64)
         self._bad_J = np.empty(MAX_REPORTED)
 
-    def configure(self, *, dx: float) -> None:
-        """The artificial viscosity's length l = dx (`eos`)."""
-        self.length = float(dx)
+    def configure(self, scene) -> None:
+        """The artificial viscosity's length l = scene.dx, the grid spacing (`eos`)."""
+        self.length = float(scene.dx)
 
     def viscosity_args(self) -> tuple[float, float, float]:
         """(l, Q1, Q2) for the kernels; the simulation must have called `configure`."""
         vol = self.volumetric_response
         if vol.viscous and self.length is None:
             raise RuntimeError(f"material {self.spec.name!r}: artificial viscosity needs the "
-                               f"grid spacing: call configure(dx=...) before stepping")
+                               f"grid spacing: call configure(scene) before stepping")
         return (self.length or 0.0), vol.q1, vol.q2
 
     def report(self, fields, nbad: int) -> None:

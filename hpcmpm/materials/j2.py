@@ -53,7 +53,7 @@ from numba import njit
 
 from ..errors import SceneError
 from ..state import SCALAR, TENSOR, FieldSpec
-from .base import POISSON, YOUNG, Param, lame
+from .base import POISSON, YOUNG, Param, choice, lame, table
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
 from .impact import ImpactMaterial
@@ -65,7 +65,7 @@ MAX_ITERATIONS = 200
 TAYLOR_QUINNEY = 0.9  # fraction of plastic work that heats (Johnson and Cook 1983)
 
 JOHNSON_COOK_SCHEMA = {
-    "type": Param(choices=("johnson_cook",), doc="hardening law"),
+    "type": choice(("johnson_cook",), doc="hardening law"),
     "A": Param(0.0, math.inf, doc="yield stress at eps_p = 0 (stress units)"),
     "B": Param(0.0, math.inf, required=False, default=0.0, low_inclusive=True,
                doc="strain-hardening coefficient (stress units)"),
@@ -364,17 +364,21 @@ class J2Plasticity(ImpactMaterial):
     parameters = {
         "E": YOUNG,
         "nu": POISSON,
-        "hardening": Param(schema=JOHNSON_COOK_SCHEMA, doc="yield stress law table"),
-        "return_map": Param(required=False, default="newton", choices=("newton", "linearized"),
-                            doc="exact return (bracketed Newton) or 003 B.5's linearized step"),
+        "hardening": table(JOHNSON_COOK_SCHEMA, required=True, doc="yield stress law table"),
+        "return_map": choice(("newton", "linearized"), "newton",
+                             doc="exact return (bracketed Newton) or 003 B.5's linearized step"),
         "specific_heat": Param(0.0, math.inf, required=False,
                                doc="c_v (energy/(mass temperature)): adiabatic heating and "
                                    "thermal softening; isothermal if absent"),
-        "eos": Param(required=False, schema=EOS_SCHEMA,
-                     doc="equation of state table; p = -K ln J if absent"),
+        "eos": table(EOS_SCHEMA, doc="equation of state table; p = -K ln J if absent"),
         **VISCOSITY_PARAMS,
     }
-    uses_svd = False
+    # Every field a j2 material may carry (what the scene validator reads from the class);
+    # an instance declares its own subset: s_zz in 2D only, T only with specific_heat.
+    fields = {"s": FieldSpec(TENSOR, "f8", 0.0), "J": FieldSpec(SCALAR, "f8", 1.0),
+              "E": FieldSpec(SCALAR, "f8", 0.0), "eps_p": FieldSpec(SCALAR, "f8", 0.0),
+              "pressure": FieldSpec(SCALAR, "f8", 0.0), "s_zz": FieldSpec(SCALAR, "f8", 0.0),
+              "T": FieldSpec(SCALAR, "f8", 293.0)}
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
@@ -397,11 +401,9 @@ class J2Plasticity(ImpactMaterial):
                           h["T_melt"] if self.thermal else math.inf, h["T_room"])
         self.method = NEWTON if q["return_map"] == "newton" else LINEARIZED
         self.specific_heat = q["specific_heat"] if self.thermal else 1.0
-        fields = {"s": FieldSpec(TENSOR, "f8", 0.0), "J": FieldSpec(SCALAR, "f8", 1.0),
-                  "E": FieldSpec(SCALAR, "f8", 0.0), "eps_p": FieldSpec(SCALAR, "f8", 0.0),
-                  "pressure": FieldSpec(SCALAR, "f8", 0.0)}
+        fields = {k: v for k, v in type(self).fields.items() if k not in ("s_zz", "T")}
         if dim == 2:
-            fields["s_zz"] = FieldSpec(SCALAR, "f8", 0.0)
+            fields["s_zz"] = type(self).fields["s_zz"]
         if self.thermal:
             fields["T"] = FieldSpec(SCALAR, "f8", float(h["T_room"]))
         self.fields = fields

@@ -31,7 +31,7 @@ import math
 from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
-from .base import POISSON, Param, lame
+from .base import POISSON, Param, lame, table
 from .decompositions import svd2, svd3
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
@@ -173,7 +173,7 @@ class ShockModel(ImpactMaterial):
                          doc="snow clamp: singular values of F_E >= 1 - theta_c; none if absent"),
         "theta_s": Param(0.0, math.inf, required=False, low_inclusive=True,
                          doc="snow clamp: singular values of F_E <= 1 + theta_s; none if absent"),
-        "eos": Param(schema=EOS_SCHEMA, doc="equation of state table"),
+        "eos": table(EOS_SCHEMA, required=True, doc="equation of state table"),
         **VISCOSITY_PARAMS,
     }
     fields = {"F_E": FieldSpec(TENSOR, "f8", "identity"), "J": FieldSpec(SCALAR, "f8", 1.0),
