@@ -14,6 +14,20 @@ from .base import Material
 from .eos import MAX_REPORTED, effective_speed, failure_messages, pressure, sound_speed_sq
 
 
+@njit(cache=True, inline="always")
+def kirchhoff2(J, dev, pq):
+    """tau = J (dev - pq I) for a 2x2 deviator tuple and the isotropic p + q."""
+    return (J * (dev[0] - pq), J * dev[1], J * dev[2], J * (dev[3] - pq))
+
+
+@njit(cache=True, inline="always")
+def kirchhoff3(J, dev, pq):
+    """tau = J (dev - pq I) for a 3x3 deviator tuple and the isotropic p + q."""
+    return (J * (dev[0] - pq), J * dev[1], J * dev[2],
+            J * dev[3], J * (dev[4] - pq), J * dev[5],
+            J * dev[6], J * dev[7], J * (dev[8] - pq))
+
+
 @njit(cache=True)
 def max_effective_speed(L, J, E, shear, kind, rho0, c0, s, gamma0, K, length, q1, q2):
     """max_p of the state-dependent speed Q + sqrt(Q^2 + c^2) (`eos`); L (n, d, d)."""

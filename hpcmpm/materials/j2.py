@@ -56,7 +56,7 @@ from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, YOUNG, Param, choice, lame, table
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
-from .impact import ImpactMaterial
+from .impact import ImpactMaterial, kirchhoff2, kirchhoff3
 from .tensors import det3, load2, load3, store2, store3
 
 NEWTON, LINEARIZED = 0, 1
@@ -340,8 +340,7 @@ def _stress_2d(L, S, J, E, tau, shear, kind, rho0, c0, s_, gamma0, K, length, q1
         Jp = J[p]
         pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1], shear, kind, rho0, c0, s_,
                             gamma0, K, length, q1, q2)
-        s = load2(S, p)
-        store2(tau, p, (Jp * (s[0] - pq), Jp * s[1], Jp * s[2], Jp * (s[3] - pq)))
+        store2(tau, p, kirchhoff2(Jp, load2(S, p), pq))
 
 
 @njit(cache=True)
@@ -351,10 +350,7 @@ def _stress_3d(L, S, J, E, tau, shear, kind, rho0, c0, s_, gamma0, K, length, q1
         Jp = J[p]
         pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1] + L[p, 2, 2], shear, kind, rho0,
                             c0, s_, gamma0, K, length, q1, q2)
-        s = load3(S, p)
-        store3(tau, p, (Jp * (s[0] - pq), Jp * s[1], Jp * s[2],
-                        Jp * s[3], Jp * (s[4] - pq), Jp * s[5],
-                        Jp * s[6], Jp * s[7], Jp * (s[8] - pq)))
+        store3(tau, p, kirchhoff3(Jp, load3(S, p), pq))
 
 
 class J2Plasticity(ImpactMaterial):

@@ -35,7 +35,7 @@ from .base import POISSON, Param, lame, table
 from .decompositions import svd2, svd3
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
-from .impact import ImpactMaterial
+from .impact import ImpactMaterial, kirchhoff2, kirchhoff3
 from .tensors import (det2, det3, frob2, frob3, load2, load3, mul2, mul2_bt, mul3, mul3_bt,
                       store2, store3)
 
@@ -145,7 +145,7 @@ def _stress_2d(L, F_E, J, E, tau, mu, shear, kind, rho0, c0, s, gamma0, K, lengt
         Jp = J[p]
         pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1], shear, kind, rho0, c0, s,
                             gamma0, K, length, q1, q2)
-        store2(tau, p, (Jp * (sd[0] - pq), Jp * sd[1], Jp * sd[2], Jp * (sd[3] - pq)))
+        store2(tau, p, kirchhoff2(Jp, sd, pq))
 
 
 @njit(cache=True)
@@ -156,9 +156,7 @@ def _stress_3d(L, F_E, J, E, tau, mu, shear, kind, rho0, c0, s, gamma0, K, lengt
         Jp = J[p]
         pq = total_pressure(Jp, E[p], L[p, 0, 0] + L[p, 1, 1] + L[p, 2, 2], shear, kind, rho0,
                             c0, s, gamma0, K, length, q1, q2)
-        store3(tau, p, (Jp * (sd[0] - pq), Jp * sd[1], Jp * sd[2],
-                        Jp * sd[3], Jp * (sd[4] - pq), Jp * sd[5],
-                        Jp * sd[6], Jp * sd[7], Jp * (sd[8] - pq)))
+        store3(tau, p, kirchhoff3(Jp, sd, pq))
 
 
 class ShockModel(ImpactMaterial):
