@@ -1,53 +1,61 @@
-"""The impact scenes on 1, 2 and 4 ranks (oversubscribed): state fields equal within 1e-10
-relative, particles compared by id (003 issue: "fields within 1e-10"). Fixed dt so every rank
-count takes the same steps; the artificial viscosity and the EOS are per particle, so the only
-differences are the summation order of ghost contributions (round-off)."""
+"""The impact scenes across rank counts (003 issue: "fields within 1e-10"; restart bitwise on
+the same count). Fixed dt so every rank count takes the same steps; the artificial viscosity
+and the EOS are per particle, so the only differences are the summation order of ghost
+contributions (round-off). Measured differences: 2e-14 (shock column), 8e-14 (Taylor bar).
+
+Cost: 8 launches of `mpiexec hpcmpm` (the 4-rank oversubscribed case for the 2D column only;
+the Taylor bar's 2-rank run serves the rank and the restart checks)."""
 
 import numpy as np
-import pytest
-from test_rank_independence import run
+from test_rank_independence import STEPS, run
+from test_restart import hpcmpm
+
+from hpcmpm.io.checkpoint import latest_checkpoint
+from hpcmpm.io.frames import read_frame
 
 # Step sizes below each scene's CFL bound at its fastest (the viscous effective speed at the
-# impact); steps enough for the shock to cross many cells.
-# The fields each scene writes (its output.fields and the core ones).
-SCENES = {"cu_shock_column_2d": (2.5e-8, ("x", "v", "J", "E", "pressure")),
-          "taylor_cu_3d": (6e-8, ("x", "v", "J", "pressure", "eps_p", "T"))}
+# impact); the fields each scene's frames hold (its output.fields and the core ones).
+COLUMN_DT, COLUMN_FIELDS = 2.5e-8, ("x", "v", "J", "E", "pressure")
+TAYLOR_DT, TAYLOR_FIELDS = 6e-8, ("x", "v", "J", "pressure", "eps_p", "T")
 
 
-@pytest.mark.parametrize("scene", sorted(SCENES))
-def test_impact_scenes_match_across_ranks(tmp_path, scene):
-    dt, names = SCENES[scene]
-    ref = run(scene, 1, tmp_path / "n1", dt)
+def compare(scene: str, ranks: int, got: dict, ref: dict, names) -> None:
+    assert np.array_equal(got["id"], ref["id"])
+    for name in names:
+        err = np.abs(got[name] - ref[name]).max() / np.abs(ref[name]).max()
+        print(f"{scene} {ranks} ranks: {name} differs by {err:.2e}")
+        # Round-off from a different summation order, amplified over 200 steps.
+        assert err < 1e-10, f"{scene} {ranks} ranks: {name} differs by {err:.2e}"
+
+
+def test_shock_column_on_two_and_four_ranks(tmp_path):
+    ref = run("cu_shock_column_2d", 1, tmp_path / "n1", COLUMN_DT)
     for ranks in (2, 4):
-        got = run(scene, ranks, tmp_path / f"n{ranks}", dt)
-        assert np.array_equal(got["id"], ref["id"])
-        for name in names:
-            scale = np.abs(ref[name]).max()
-            err = np.abs(got[name] - ref[name]).max() / scale
-            print(f"{scene} {ranks} ranks: {name} differs by {err:.2e}")
-            # Round-off from a different summation order, amplified over 200 steps.
-            assert err < 1e-10, f"{scene} {ranks} ranks: {name} differs by {err:.2e}"
+        got = run("cu_shock_column_2d", ranks, tmp_path / f"n{ranks}", COLUMN_DT)
+        compare("cu_shock_column_2d", ranks, got, ref, COLUMN_FIELDS)
 
 
-def test_taylor_restart_is_bitwise(tmp_path):
-    """100 steps, checkpoint, restart to 200 on the same 2 ranks: the same bits as 200 steps
-    without a break. The state the J2 model carries (s, eps_p, T, E, J) and the stored L that
-    its artificial viscosity reads must all be in the checkpoint for this to hold."""
-    from test_restart import hpcmpm
+def test_taylor_bar_on_two_ranks_and_restarted(tmp_path):
+    """1 vs 2 ranks within 1e-10; then 100 steps, checkpoint, restart to 200 on the same 2
+    ranks gives the same bits as the 2-rank run without a break: the J2 state (s, eps_p, T,
+    E, J) and the stored L its artificial viscosity reads are all in the checkpoint. Every
+    run has frames every 50 steps, so all land on the same output times the same way."""
+    fixed = ["--set", f"simulation.dt={TAYLOR_DT}", "--set", f"output.every={50 * TAYLOR_DT}",
+             "--quiet"]
 
-    from hpcmpm.io.checkpoint import latest_checkpoint
-    from hpcmpm.io.frames import read_frame
+    def launch(ranks: int, out, steps: int) -> dict:
+        hpcmpm(ranks, "run", "inputs/taylor_cu_3d.toml", "--out", str(out), "--end-time",
+               str(steps * TAYLOR_DT), *fixed)
+        return read_frame(sorted(out.glob("frame_*.h5"))[-1])[0]
 
-    dt = 6e-8
-    fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={50 * dt}", "--quiet"]
-    full, parts = tmp_path / "full", tmp_path / "parts"
-    hpcmpm(2, "run", "inputs/taylor_cu_3d.toml", "--out", str(full), "--end-time",
-           str(200 * dt), *fixed)
-    hpcmpm(2, "run", "inputs/taylor_cu_3d.toml", "--out", str(parts), "--end-time",
-           str(100 * dt), *fixed)
-    hpcmpm(2, "restart", str(latest_checkpoint(parts)), "--end-time", str(200 * dt), "--quiet")
-    ref, ref_attrs = read_frame(sorted(full.glob("frame_*.h5"))[-1])
+    ref = launch(1, tmp_path / "n1", STEPS)
+    full = launch(2, tmp_path / "n2", STEPS)
+    compare("taylor_cu_3d", 2, full, ref, TAYLOR_FIELDS)
+    parts = tmp_path / "parts"
+    launch(2, parts, STEPS // 2)
+    hpcmpm(2, "restart", str(latest_checkpoint(parts)), "--end-time",
+           str(STEPS * TAYLOR_DT), "--quiet")
     got, attrs = read_frame(sorted(parts.glob("frame_*.h5"))[-1])
-    assert attrs["step"] == ref_attrs["step"] == 200
-    for name in ("x", "v", "J", "pressure", "eps_p", "T"):
-        assert np.array_equal(got[name], ref[name]), f"{name} not bitwise equal"
+    assert attrs["step"] == STEPS
+    for name in TAYLOR_FIELDS:
+        assert np.array_equal(got[name], full[name]), f"{name} not bitwise equal"
