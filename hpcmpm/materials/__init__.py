@@ -13,18 +13,22 @@ from typing import Any
 from ..errors import SceneError
 from .base import ElasticMaterial, Material, Param, check_params, lame
 from .fixed_corotated import FixedCorotated
+from .herschel_bulkley import HerschelBulkley
 from .j2 import J2Plasticity
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
+from .oldroyd_b import OldroydB
 from .shock import ShockModel
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
+from .von_mises import VonMises
 from .weakly_compressible import WeaklyCompressible
 
 MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
-                WeaklyCompressible, ShockModel, J2Plasticity)
+                WeaklyCompressible, OldroydB, HerschelBulkley, VonMises, ShockModel,
+                J2Plasticity)
 }
 
 
@@ -41,7 +45,7 @@ def validate_params(type_name: str, params: dict[str, Any]) -> list[str]:
     cls = MATERIALS.get(type_name)
     if cls is None:
         return [_unknown_type(type_name)]
-    return check_params(cls.parameters, params)
+    return cls.parameter_problems(params)
 
 
 def make_material(spec, dim: int) -> Material:
@@ -54,5 +58,6 @@ def make_material(spec, dim: int) -> Material:
 
 
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
-           "make_material", "validate_params", "FixedCorotated", "J2Plasticity", "LinearElastic",
-           "NeoHookean", "ShockModel", "StableNeoHookean", "Snow", "WeaklyCompressible"]
+           "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
+           "StableNeoHookean", "Snow", "WeaklyCompressible", "OldroydB", "HerschelBulkley",
+           "VonMises", "ShockModel", "J2Plasticity"]
