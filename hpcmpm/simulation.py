@@ -292,10 +292,11 @@ class Simulation:
         when a particle holds a non-finite value or det F <= 0."""
         p = self.particles
         speed, nbad = scan_health(p["x"], p["v"], p[self.deformation], self._bad, MAX_REPORTED)
-        total_bad = self.domain.sum(int(nbad))
+        # One allreduce for the step's global decisions (speed, health, stop, far particles).
+        speed, total_bad = self.domain.agree(p, speed, int(nbad))
         if total_bad:
             self.raise_instability(int(nbad), total_bad)
-        return self.domain.max(speed)
+        return speed
 
     def raise_instability(self, nbad_local: int, total_bad: int) -> None:
         p = self.particles

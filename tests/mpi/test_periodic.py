@@ -106,7 +106,7 @@ def test_particle_crossing_a_periodic_face_is_wrapped_and_owned_once():
     shift = np.where(p["id"] % 2 == 0, 0.6, -0.6)
     p["x"][:, 0] += shift
     p["x"][:, 1] += 0.01
-    domain.migrate(p)
+    domain.migrate_all(p)
     after = gather_by_id(domain, p)
 
     np.testing.assert_array_equal(after["id"], before["id"])  # each id exactly once
