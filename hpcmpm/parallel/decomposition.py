@@ -304,6 +304,18 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
     return boxes
 
 
+def neighbour_ranks(boxes: np.ndarray, me: int, shifts: np.ndarray, reach: int) -> np.ndarray:
+    """Ranks whose box, or one of its images ``box + shift``, meets box ``me`` expanded by
+    ``reach`` cells (symmetric: expanding either box is the same test). Sorted, without me."""
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    mine_lo, mine_hi = boxes[me, 0] - reach, boxes[me, 1] + reach
+    found = np.zeros(len(boxes), dtype=bool)
+    for s in shifts:
+        found |= np.all(np.minimum(mine_hi, hi + s) > np.maximum(mine_lo, lo + s), axis=1)
+    found[me] = False
+    return np.flatnonzero(found).astype(np.int64)
+
+
 def intersect(lo_a, hi_a, lo_b, hi_b):
     """Intersection of boxes ``[lo, hi)`` (arrays broadcast); empty when any ``hi <= lo``."""
     return np.maximum(lo_a, lo_b), np.minimum(hi_a, hi_b)

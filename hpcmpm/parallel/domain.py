@@ -19,9 +19,9 @@ import numpy as np
 from mpi4py import MPI
 
 from .comm import Communicator, CountingComm
-from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers, owner_ranks,
-                            particle_cells, points_in_boxes, recursive_bisection,
-                            wrap_periodic)
+from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers,
+                            neighbour_ranks, owner_ranks, particle_cells, points_in_boxes,
+                            recursive_bisection, wrap_periodic)
 from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
                        pack_regions, pack_rows, region_slices, regions_size, row_dtype, unpack_regions,
                        unpack_rows)
@@ -159,16 +159,9 @@ class Domain(Communicator):
 
     def find_neighbours(self) -> np.ndarray:
         """Ranks whose box, or one of its periodic images, meets mine expanded by
-        `NEIGHBOUR_REACH` cells (symmetric: expanding either box is the same test). They
-        hold every node my particles touch and every particle that touches my nodes."""
-        lo, hi = self.boxes[:, 0], self.boxes[:, 1]
-        mine_lo = self.boxes[self.rank, 0] - NEIGHBOUR_REACH
-        mine_hi = self.boxes[self.rank, 1] + NEIGHBOUR_REACH
-        found = np.zeros(self.size, dtype=bool)
-        for s in self.shifts:
-            found |= np.all(np.minimum(mine_hi, hi + s) > np.maximum(mine_lo, lo + s), axis=1)
-        found[self.rank] = False
-        return np.flatnonzero(found).astype(np.int64)
+        `NEIGHBOUR_REACH` cells. They hold every node my particles touch and every particle
+        that touches my nodes."""
+        return neighbour_ranks(self.boxes, self.rank, self.shifts, NEIGHBOUR_REACH)
 
     def _neighbour_graph(self):
         """The distributed-graph communicator of my neighbours (MPI-3 neighbour collectives),
