@@ -149,16 +149,18 @@ def initial_particles(sim) -> MemoryEstimate:
     from .geometry import count_scene, estimate_count, sample_share, share_bounds
 
     scene, domain, p = sim.scene, sim.domain, sim.particles
-    # The shapes alone first: a scene far too big is refused before any point is tested.
+    # The shapes alone first: a scene far too big is refused before any point is tested
+    # (not from a mesh's bounding lattice, which can exceed the mesh many times).
     guess, exact = estimate_count(scene)
-    check_memory(scene, domain, guess, exact)
+    if not any(body.shape == "mesh" for body in scene.bodies):
+        check_memory(scene, domain, guess, exact)
     counts = count_scene(scene, domain.rank, domain.size, domain.sum)
     estimate = check_memory(scene, domain, counts.total, True)
     start, stop = share_bounds(counts.total, domain.rank, domain.size)
     # Room for the share and for what the bisection may give beyond it (a slab of cells),
     # so that the arrivals do not make the arrays grow by half.
     share = stop - start
-    p._reserve(p.n + share + (share // 16 + MIGRATE_BATCH if domain.size > 1 else 0))
+    p.reserve(p.n + share + (share // 16 + MIGRATE_BATCH if domain.size > 1 else 0))
     for a in range(start, stop, SAMPLE_BATCH):
         values = sample_share(scene, counts, a, min(a + SAMPLE_BATCH, stop))
         p.append({k: v for k, v in values.items() if k in p})

@@ -94,7 +94,13 @@ def reference_sampling(scene):
 
 
 @pytest.mark.parallel(ranks=[1, 2, 4])
-def test_shares_together_are_the_one_process_sampling(monkeypatch):
+def test_start_up_samples_shares_and_stays_within_them(monkeypatch):
+    # Two checks in one launch: an mpiexec start costs more than the checks.
+    check_shares_together_are_the_one_process_sampling(monkeypatch)
+    check_start_up_memory_per_rank_follows_its_share(monkeypatch)
+
+
+def check_shares_together_are_the_one_process_sampling(monkeypatch):
     # Small chunks: many per body, shared round-robin, and share boundaries inside layers.
     monkeypatch.setattr(geometry, "CHUNK", 97)
     scene = parse_scene(SCENE)
@@ -122,8 +128,7 @@ def test_shares_together_are_the_one_process_sampling(monkeypatch):
         np.testing.assert_array_equal(counts.centroids[b], alone.centroids[b])
 
 
-@pytest.mark.parallel(ranks=[1, 2, 4])
-def test_start_up_memory_per_rank_follows_its_share(monkeypatch):
+def check_start_up_memory_per_rank_follows_its_share(monkeypatch):
     """Every allocation numpy makes while counting, sampling and decomposing (tracemalloc:
     deterministic, unlike RSS) stays within a few copies of the rank's own share of the
     particles: ~ N / P, no term in N."""

@@ -131,7 +131,13 @@ def test_bench_command_dispatches(tmp_path):
 
 def test_scaling_model_smoke(tmp_path):
     """The weak-scaling model's counting part on a few ranks, and the model with its plot."""
-    run_script("scaling_model.py", "geometry", "--max-ranks", "4", "--out", str(tmp_path))
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("scaling_model",
+                                                  SCRIPTS / "scaling_model.py")
+    scaling_model = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(scaling_model)  # in this process: no second interpreter start
+    scaling_model.main(["geometry", "--max-ranks", "4", "--out", str(tmp_path)])
     geo = json.loads((tmp_path / "scaling_geometry.json").read_text())
     # Two ranks of a fully periodic lattice are each other's only neighbour; four are all
     # neighbours; every rank has ghost nodes beyond its box.
@@ -139,7 +145,7 @@ def test_scaling_model_smoke(tmp_path):
     assert by_p[(2, 100000)]["neighbours_max"] == 1 and by_p[(4, 100000)]["neighbours_max"] == 3
     assert all(r["ghost_nodes_max"] > 0 and r["imbalance"] >= 1.0 for r in geo["rows"])
     plot = tmp_path / "model.png"
-    run_script("scaling_model.py", "model", "--out", str(tmp_path), "--plot", str(plot))
+    scaling_model.main(["model", "--out", str(tmp_path), "--plot", str(plot)])
     model = json.loads((tmp_path / "scaling_model.json").read_text())
     assert plot.stat().st_size > 0
     for curve in model["curves"].values():

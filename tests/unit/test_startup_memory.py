@@ -54,24 +54,20 @@ def test_validate_and_run_report_a_scene_too_big_in_one_line():
     lines = proc.stdout.splitlines()
     assert lines[0] == "inputs/jelly_cube_3d.toml: ok (2744000000 particles, 1 materials, dim 3)"
     assert "2,744,000,000 particles" in lines[1] and "available" in lines[1]
-    proc = hpcmpm("run", *BIG, "--dry-run")
+    proc = hpcmpm("run", *BIG, "--dry-run", "--out", "/nonexistent/never/written")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     errors = [l for l in proc.stderr.splitlines() if l.startswith("hpcmpm: error:")]
     assert len(errors) == 1 and "2,744,000,000 particles" in errors[0], proc.stderr
 
 
-def test_validate_prints_the_estimate_for_a_small_scene():
-    proc = hpcmpm("validate", "inputs/disks_2d.toml")
-    assert proc.returncode == 0, proc.stderr
-    ok, memory = proc.stdout.splitlines()
+def test_validate_report_and_dry_run_of_a_small_scene(capsys):
+    ok, memory = startup.validate_report(load_scene("inputs/disks_2d.toml")).splitlines()
     assert ok == "inputs/disks_2d.toml: ok (2528 particles, 1 materials, dim 2)"
     assert memory.startswith("inputs/disks_2d.toml: memory estimate: 2,528 particles, ")
     assert "available here" in memory
+    from hpcmpm.cli import main
 
-
-def test_dry_run_reports_counts_and_memory(tmp_path):
-    proc = hpcmpm("run", "inputs/disks_2d.toml", "--dry-run", "--out", str(tmp_path / "o"))
-    assert proc.returncode == 0, proc.stderr
-    assert "dry run on 1 rank(s): 2,528 particles" in proc.stdout
-    assert "peak RSS per rank" in proc.stdout
-    assert not (tmp_path / "o").exists()  # nothing written
+    assert main(["run", "inputs/disks_2d.toml", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "dry run on 1 rank(s): 2,528 particles, per rank min 2,528 / max 2,528" in out
+    assert "peak RSS per rank" in out
