@@ -412,6 +412,8 @@ class Simulation:
             speed, nbad = scan_health(p["x"], p["v"], p[kinds[1]], self._bad, MAX_REPORTED)
         # One allreduce for the step's global decisions (speed, health, stop, far particles).
         speed, total_bad = self.domain.agree(p, speed, int(nbad))
+        if self.domain.moved_in_agree:  # far jumps delivered: the order is stale
+            self._needs_sort = True
         if total_bad:
             self.raise_instability(int(nbad), total_bad)
         return speed

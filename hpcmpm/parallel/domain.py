@@ -111,6 +111,8 @@ class Domain(Communicator):
         self.neighbours = np.empty(0, dtype=np.int64)
         # Particles `migrate` kept because their owner is no neighbour: `agree` settles them.
         self.pending_far = 0
+        self.moved_in_agree = 0
+        self.arrived = 0  # particles received by migrations so far (a running count)
         # The run loop's stop request (a signal) and the agreed answer (`agree`).
         self.stop_requested = False
         self.stop_agreed = False
@@ -216,13 +218,17 @@ class Domain(Communicator):
         largest particle speed (the time step), the number of broken particles (the
         instability guard), whether any rank has a stop request (``stop_requested``, the
         run loop's signal; the answer is ``stop_agreed``) and whether any rank holds particles
-        that jumped past its neighbours (then they are delivered here, `migrate_all`). One
-        allreduce of 5 doubles. Returns (max speed, total broken)."""
+        that jumped past its neighbours (then they are delivered here, `migrate_all`, and
+        ``moved_in_agree`` counts the particles this rank sent and received: the caller's
+        particle order is then stale). One allreduce of 5 doubles. Returns (max speed, total
+        broken)."""
         maxes, sums = self.max_then_sum(
             [speed, float(self.pending_far > 0), float(self.stop_requested)], [n_bad])
         self.stop_agreed = bool(maxes[2])
+        self.moved_in_agree = 0
         if maxes[1]:
-            self.migrate_all(particles)
+            arrived_before = self.arrived
+            self.moved_in_agree = self.migrate_all(particles) + self.arrived - arrived_before
         return float(maxes[0]), int(sums[0])
 
     # -- particles ----------------------------------------------------------------------------
@@ -293,6 +299,7 @@ class Domain(Communicator):
         del arrays
         recv = exchange_rows(self.mpi, send, dests, send_counts, sources, recv_counts,
                              TAG_MIGRATE)
+        self.arrived += len(recv)
         del send
         if len(order):
             particles.remove(order)
