@@ -3,8 +3,8 @@ the same count). Fixed dt so every rank count takes the same steps; the artifici
 and the EOS are per particle, so the only differences are the summation order of ghost
 contributions (round-off). Measured differences: 2e-14 (shock column), 8e-14 (Taylor bar).
 
-Cost: 8 launches of `mpiexec hpcmpm` (the 4-rank oversubscribed case for the 2D column only;
-the Taylor bar's 2-rank run serves the rank and the restart checks)."""
+Cost: 6 launches of `mpiexec hpcmpm` (the column at 1 and 4 ranks; the Taylor bar at 1 and 2,
+its 2-rank run serving the rank and the restart checks)."""
 
 import numpy as np
 from test_rank_independence import STEPS, run
@@ -28,11 +28,12 @@ def compare(scene: str, ranks: int, got: dict, ref: dict, names) -> None:
         assert err < 1e-10, f"{scene} {ranks} ranks: {name} differs by {err:.2e}"
 
 
-def test_shock_column_on_two_and_four_ranks(tmp_path):
+def test_shock_column_on_four_ranks(tmp_path):
+    # 4 ranks (oversubscribed) cut the 200-cell column into the most pieces; 2 ranks measured
+    # the same 2e-14 and are left out for the CI time budget.
     ref = run("cu_shock_column_2d", 1, tmp_path / "n1", COLUMN_DT)
-    for ranks in (2, 4):
-        got = run("cu_shock_column_2d", ranks, tmp_path / f"n{ranks}", COLUMN_DT)
-        compare("cu_shock_column_2d", ranks, got, ref, COLUMN_FIELDS)
+    got = run("cu_shock_column_2d", 4, tmp_path / "n4", COLUMN_DT)
+    compare("cu_shock_column_2d", 4, got, ref, COLUMN_FIELDS)
 
 
 def test_taylor_bar_on_two_ranks_and_restarted(tmp_path):
