@@ -326,7 +326,8 @@ def _simulation(c: Checker, raw: dict) -> dict:
         return {"dim": None, "domain_lo": None, "domain_hi": None, "dx": None,
                 "particles_per_cell": None, "kernel": None, "transfer": None,
                 "flip_alpha": None, "cfl": None, "dt": None, "max_dt": None,
-                "end_time": None, "gravity": None, "integrator": None, "periodic": ()}
+                "end_time": None, "gravity": None, "integrator": None,
+                "periodic": ()}
     c.keys(sim, "simulation", SIMULATION_KEYS)
     p = "simulation"
     out: dict[str, Any] = {}
@@ -358,10 +359,10 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out["max_dt"] = c.number(sim, "max_dt", p, None, low=0.0)
     out["end_time"] = c.number(sim, "end_time", p, low=0.0)
     out["gravity"] = c.vector(sim, "gravity", p, dim, (0.0,) * dim) if dim else None
+    out["periodic"] = _periodic(c, sim, p, dim)
     from .solvers import INTEGRATORS
 
     out["integrator"] = c.string(sim, "integrator", p, "explicit", tuple(INTEGRATORS))
-    out["periodic"] = _periodic(c, sim, p, dim)
     if out["dx"] and lo and hi:
         cells = [(h - l) / out["dx"] for l, h in zip(lo, hi)]
         if any(abs(n - round(n)) > 1e-6 * max(n, 1) for n in cells):

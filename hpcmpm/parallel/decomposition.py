@@ -54,7 +54,14 @@ def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
     n = x.shape[0]
     index = np.empty(n, dtype=np.int64)
     owner = np.empty(n, dtype=np.int64)
-    k = leavers(x, domain_lo, inv_dx, boxes, me, index, owner)
+    search = np.empty(boxes.shape[0], dtype=np.int64)
+    search[0] = me
+    k = 1
+    for b in range(boxes.shape[0]):
+        if b != me:
+            search[k] = b
+            k += 1
+    k = leavers(x, domain_lo, inv_dx, boxes, search, index, owner)
     for p in range(n):
         out[p] = me
     for j in range(k):
@@ -63,16 +70,19 @@ def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
 
 
 @njit(cache=True)
-def leavers(x, domain_lo, inv_dx, boxes, me, index, owner):
-    """Particles whose cell is outside this rank's box (``boxes[me]``): writes their indices
-    (increasing) to ``index`` and their owners to ``owner`` (both at least as long as x) and
-    returns how many. Non-finite positions stay (the instability guard reports them).
+def leavers(x, domain_lo, inv_dx, boxes, search, index, owner):
+    """Particles whose cell is outside this rank's box (``boxes[search[0]]``): writes their
+    indices (increasing) to ``index`` and their owners to ``owner`` (both at least as long as
+    x) and returns how many. The other boxes are tried in the order of ``search`` (the
+    neighbours first: a step's leavers stop there). Non-finite positions stay (the
+    instability guard reports them), as do positions in no box (beyond +-BIG cells).
 
     floor(xi) >= lo <=> xi >= lo and floor(xi) < hi <=> xi < hi for integers lo, hi, so the
     cell test compares the grid coordinate with the box as floats, without a floor; the
     own box is held in scalars, the test most particles end with."""
     n, dim = x.shape
     three = dim == 3
+    me = search[0]
     flo = boxes[:, 0, :].astype(np.float64)
     fhi = boxes[:, 1, :].astype(np.float64)
     d0, d1 = domain_lo[0], domain_lo[1]
@@ -89,9 +99,8 @@ def leavers(x, domain_lo, inv_dx, boxes, me, index, owner):
             continue
         if not (abs(c0) < BIG and abs(c1) < BIG and abs(c2) < BIG):  # false for NaN too
             continue
-        for b in range(boxes.shape[0]):
-            if b == me:
-                continue
+        for j in range(1, search.shape[0]):
+            b = search[j]
             if (c0 >= flo[b, 0] and c0 < fhi[b, 0] and c1 >= flo[b, 1] and c1 < fhi[b, 1]
                     and (not three or (c2 >= flo[b, 2] and c2 < fhi[b, 2]))):
                 index[count] = p
@@ -293,6 +302,18 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
             children.append((r0 + n_left, r1, lo_right, hi, index[~left]))
         level = children
     return boxes
+
+
+def neighbour_ranks(boxes: np.ndarray, me: int, shifts: np.ndarray, reach: int) -> np.ndarray:
+    """Ranks whose box, or one of its images ``box + shift``, meets box ``me`` expanded by
+    ``reach`` cells (symmetric: expanding either box is the same test). Sorted, without me."""
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    mine_lo, mine_hi = boxes[me, 0] - reach, boxes[me, 1] + reach
+    found = np.zeros(len(boxes), dtype=bool)
+    for s in shifts:
+        found |= np.all(np.minimum(mine_hi, hi + s) > np.maximum(mine_lo, lo + s), axis=1)
+    found[me] = False
+    return np.flatnonzero(found).astype(np.int64)
 
 
 def intersect(lo_a, hi_a, lo_b, hi_b):

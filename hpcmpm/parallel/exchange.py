@@ -36,30 +36,35 @@ def unpack_rows(rows: np.ndarray) -> dict[str, np.ndarray]:
     return {name: rows[name] for name in rows.dtype.names}
 
 
-def exchange_rows(comm: MPI.Comm, send: np.ndarray, send_counts: np.ndarray,
-                  recv_counts: np.ndarray, tag: int) -> np.ndarray:
-    """Send records ``send`` (grouped by destination, ``send_counts[r]`` for rank ``r``) and
-    receive ``recv_counts[r]`` records from each rank; messages only where a count is nonzero.
-    Returns the received records grouped by source rank. Records travel as bytes; the ones a
-    rank sends itself (periodic images) are copied (``send_counts[me] == recv_counts[me]``)."""
-    recv = np.empty(int(recv_counts.sum()), dtype=send.dtype)
+def exchange_rows(comm, send: np.ndarray, dests: np.ndarray, send_counts: np.ndarray,
+                  sources: np.ndarray, recv_counts: np.ndarray, tag: int) -> np.ndarray:
+    """Send records ``send`` (grouped by destination: ``send_counts[i]`` for rank
+    ``dests[i]``) and receive ``recv_counts[i]`` records from rank ``sources[i]``; messages
+    only where a count is nonzero. Returns the received records in the order of ``sources``.
+    Records travel as bytes; the ones a rank sends itself (periodic images) are copied
+    (its entries in both lists must then agree)."""
+    recv = np.empty(int(np.sum(recv_counts)), dtype=send.dtype)
     if send.dtype.itemsize == 0:
         return recv
     me = comm.Get_rank()
-    send_start = np.concatenate([[0], np.cumsum(send_counts)])
-    recv_start = np.concatenate([[0], np.cumsum(recv_counts)])
+    send_start = np.concatenate([[0], np.cumsum(send_counts)]).astype(np.int64)
+    recv_start = np.concatenate([[0], np.cumsum(recv_counts)]).astype(np.int64)
+    own = {int(d): i for i, d in enumerate(dests) if d == me}
     requests = []
-    for source in np.flatnonzero(recv_counts):
-        start, stop = int(recv_start[source]), int(recv_start[source + 1])
-        if source == me:
-            recv[start:stop] = send[send_start[me]:send_start[me + 1]]
+    for i in np.flatnonzero(recv_counts):
+        start, stop = int(recv_start[i]), int(recv_start[i + 1])
+        if sources[i] == me:
+            j = own[me]
+            recv[start:stop] = send[send_start[j]:send_start[j + 1]]
             continue
-        requests.append(comm.Irecv(recv[start:stop].view(np.uint8), source=int(source), tag=tag))
-    for dest in np.flatnonzero(send_counts):
-        if dest == me:
+        requests.append(comm.Irecv(recv[start:stop].view(np.uint8), source=int(sources[i]),
+                                   tag=tag))
+    for i in np.flatnonzero(send_counts):
+        if dests[i] == me:
             continue
-        start, stop = int(send_start[dest]), int(send_start[dest + 1])
-        requests.append(comm.Isend(send[start:stop].view(np.uint8), dest=int(dest), tag=tag))
+        start, stop = int(send_start[i]), int(send_start[i + 1])
+        requests.append(comm.Isend(send[start:stop].view(np.uint8), dest=int(dests[i]),
+                                   tag=tag))
     MPI.Request.Waitall(requests)
     return recv
 
