@@ -493,9 +493,10 @@ class SemiImplicitIntegrator:
 
     def _admissible_step(self, sim, dt: float) -> None:
         """Linearized mode: v += dv, halved until every material state it makes is
-        admissible (E finite). A full step is taken whenever it is admissible, so this
-        changes nothing but the steps where one Newton step would invert a particle (a hard
-        impact at a large dt); those are counted in ``last_step["halvings"]``."""
+        admissible (E finite) once the boundary conditions have acted on it. A full step is
+        taken whenever it is admissible, so this changes nothing but the steps where one
+        Newton step would invert a particle (a hard impact at a large dt); those are counted
+        in ``last_step["halvings"]``."""
         f = self._flat
         trial = f["velocity_trial"]
         start = self._v_velocity.copy()
@@ -503,6 +504,9 @@ class SemiImplicitIntegrator:
         for halving in range(LINE_SEARCH_HALVINGS):
             np.multiply(self._v_x, alpha, out=trial)
             trial += start
+            # The walls and colliders act once more on the result (`solve`); check the
+            # velocity G2P will see.
+            sim.apply_grid_boundaries(sim.grid["velocity_trial"], dt)
             if math.isfinite(self._energy(sim, dt, "velocity_trial")):
                 self._v_velocity[:] = trial
                 self._halvings = halving
