@@ -307,8 +307,11 @@ class SemiImplicitIntegrator:
         self._contract(sim, "velocity", self._L)
         with sim.timers("solve_material"):
             for material, fields, start, stop in self._slices:
-                material.implicit_gradient(fields, self._L[start:stop], dt,
-                                           self._G[start:stop])
+                try:
+                    material.implicit_gradient(fields, self._L[start:stop], dt,
+                                               self._G[start:stop])
+                except ZeroDivisionError:  # a degenerate state (det = 0): inadmissible
+                    self._G[start:stop] = math.nan
         self._scatter(sim, self._G, "gradient")
         with sim.timers("solve_vector"):
             add_inertia(self._v_grad, self._mass, self._v_velocity, self._v_star, self._free)
@@ -459,7 +462,10 @@ class SemiImplicitIntegrator:
         local = 0.0
         with sim.timers("solve_material"):
             for material, fields, start, stop in self._slices:
-                local += material.implicit_energy(fields, self._dL[start:stop], dt)
+                try:
+                    local += material.implicit_energy(fields, self._dL[start:stop], dt)
+                except ZeroDivisionError:  # a degenerate state (det = 0): inadmissible
+                    local = math.inf
         f = self._flat
         with sim.timers("solve_vector"):
             f["cg_w"][:] = f[name] - self._v_star
