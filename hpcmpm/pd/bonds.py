@@ -176,7 +176,7 @@ def _offsets(counts: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def segment_index(offsets, rows):
     """Half-bond indices of the segments of ``rows``, concatenated in that order."""
     total = 0
@@ -191,7 +191,7 @@ def segment_index(offsets, rows):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def count_intact(offsets, status):
     n = len(offsets) - 1
     out = np.zeros(n, dtype=np.int64)
@@ -203,7 +203,7 @@ def count_intact(offsets, status):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def resolve_slots_kernel(offsets, partner, status, sorted_ids, order, x0, slot):
     """Binary search of each partner id in ``sorted_ids``; among equal ids (periodic images)
     the one nearest to the bond's owner in ``x0``; writes ``slot``; returns the number of

@@ -19,7 +19,8 @@ with z_q' = Y - F_q X.
 Callback-free: `correspondence_kinematics` (failure, K, F) on owners -> the caller evaluates the
 Kirchhoff stress tau(F) with any material kernel -> `correspondence_force_state` (A = tau
 F^-T K^-1) on owners -> the caller refreshes A, F, ``active`` in the halo ->
-`correspondence_forces`. A particle whose K is ill-conditioned (fewer than d independent
+`correspondence_forces`. An attached particle with det F <= 0 gets A = NaN (the engine's health
+check reports it). A particle whose K is ill-conditioned (fewer than d independent
 intact bonds: det K < 1e-6 (tr K / d)^d) is detached: F = I, A = 0, active = 0; it carries no
 PD stress and no stabilization, and is never reported as an inverted element by itself.
 """
@@ -37,7 +38,7 @@ from .geometry import bond_vectors, norm3
 DETACHED_RCOND = 1e-6
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _invert(M, out, dim):
     """out = M^-1 for dim 2 or 3; returns det M."""
     if dim == 2:
@@ -65,7 +66,7 @@ def _invert(M, out, dim):
     return det
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_owned,
                               F, Kinv, active):
     """Failure (stretch > s0 breaks), then K^-1 and F of the owned points (F, Kinv
@@ -98,7 +99,7 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
         tr = 0.0
         for i in range(dim):
             tr += K[i, i]
-        det = _invert(K, Ki, dim) if tr > 0.0 else 0.0
+        det = _invert(K, Ki, dim)
         if not (tr > 0.0 and det > DETACHED_RCOND * (tr / dim) ** dim):
             active[p] = 0.0
             for i in range(dim):
@@ -117,7 +118,7 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
     return broken
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def correspondence_force_state(F, Kinv, tau, active, n_owned, A):
     """A_p = P_p K_p^-1 with P = tau F^-T (first Piola-Kirchhoff from the Kirchhoff stress);
     0 for detached points."""
@@ -128,7 +129,10 @@ def correspondence_force_state(F, Kinv, tau, active, n_owned, A):
         if active[p] == 0.0:
             A[p, :, :] = 0.0
             continue
-        _invert(F[p], Fi, dim)
+        if not _invert(F[p], Fi, dim) > 0.0:
+            # An inverted PD family: NaN reaches the engine's health check.
+            A[p, :, :] = np.nan
+            continue
         for i in range(dim):
             for j in range(dim):
                 s = 0.0
@@ -143,7 +147,7 @@ def correspondence_force_state(F, Kinv, tau, active, n_owned, A):
                 A[p, i, j] = s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pair_force(x, x0, vol, p, q, dim, w, A, F, active, G, Xv, Yv, out):
     """out = force on p from the bond p-q (module docstring); symmetric factors only."""
     Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, q, dim)
@@ -165,7 +169,7 @@ def _pair_force(x, x0, vol, p, q, dim, w, A, F, active, G, Xv, Yv, out):
         out[i] = (w * (tp + tq) + gs * (ap * zp + aq * zq)) * vv
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, active, G,
                           n_owned, f):
     """f_p = sum_q [w (A_p + A_q) X + (G w/|X|)(z_p + z_q)] V_p V_q over intact bonds; A, F,
@@ -187,7 +191,7 @@ def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, activ
             f[p, i] = acc[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def correspondence_bond_forces(x, x0, vol, offsets, slot, status, weight, A, F, active, G,
                                n_owned, out):
     """The per-half-bond terms of `correspondence_forces`, out (nb, d) (verification)."""

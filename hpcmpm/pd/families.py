@@ -45,7 +45,7 @@ def influence_code(name: str) -> int:
     return INFLUENCES.index(name)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def influence(code, r, delta):
     """omega(|X|) for the influence function ``code`` (index into INFLUENCES)."""
     if code == 0:
@@ -57,7 +57,7 @@ def influence(code, r, delta):
     return math.exp(-(r / delta) * (r / delta))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def partial_volume(r, delta, dx, on):
     """beta(|X|): PA-HHB partial-volume fraction (module docstring); 1 inside when ``on`` is
     False (the caller then only passes |X| <= delta)."""
@@ -227,7 +227,7 @@ def _cell_sort(x0, h):
     return keys, order.astype(np.int64), lo, ncell.astype(np.int64)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lower_bound(a, v):
     lo, hi = 0, len(a)
     while lo < hi:
@@ -239,7 +239,7 @@ def _lower_bound(a, v):
     return lo
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _search(x0, n_owned, sorted_keys, order, cell_lo, ncell, radius, delta, dx, pv, code,
             seg, poly_v, poly_off, counts, offsets, slot, weight, count_only):
     """Cell-list search; first pass counts bonds per owned point, second pass fills them."""
@@ -300,12 +300,12 @@ def _search(x0, n_owned, sorted_keys, order, cell_lo, ncell, radius, delta, dx, 
             counts[i] = n_i
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _orient(ax, ay, bx, by, cx, cy):
     return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
     """True when the reference segment x0_i -> x0_j crosses a pre-crack: a 2D segment (the
     bond's ends strictly on opposite sides of its line, the crack's ends not strictly on the
@@ -360,7 +360,7 @@ def _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sort_segments_by_id(offsets, partner, slot, weight):
     """Order each particle's half-bonds by partner id (the summation order on any rank)."""
     for i in range(len(offsets) - 1):

@@ -8,7 +8,8 @@ negation of a difference is exact and addition/multiplication are commutative, s
 that q adds is bitwise the negative of p's, and a bond's stretch is bitwise the same at both
 ends: this is the same as evaluating every bond in the orientation lower id -> higher id and
 negating, without reading the partner's id. Kernels do not use fastmath (no contraction into
-fused multiply-adds, which would break the symmetry).
+fused multiply-adds, which would break the symmetry) and use numpy's error model (a division
+by zero gives inf or nan instead of a per-division check and an exception).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def bond_vectors(x, x0, p, q, dim):
     """(Y, X) components of the bond p -> q; the third components are 0 in 2D."""
     y0 = x[q, 0] - x[p, 0]
@@ -34,12 +35,12 @@ def bond_vectors(x, x0, p, q, dim):
     return y0, y1, y2, X0, X1, X2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def norm3(a, b, c):
     return math.sqrt(a * a + b * b + c * c)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def weighted_volume_sums(x0, vol, offsets, slot, status, weight, n_owned, out):
     """out_p = sum over intact bonds of w_pq V_q (the damage denominator at set-up, 003 eq.
     4.8's phi = 1 - sum_active / sum_initial)."""
@@ -51,7 +52,7 @@ def weighted_volume_sums(x0, vol, offsets, slot, status, weight, n_owned, out):
         out[p] = s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def damage(vol, offsets, slot, status, weight, initial, n_owned, out):
     """phi_p = 1 - sum_active w V_q / sum_initial w V_q (1 for a particle that had none)."""
     for p in range(n_owned):
@@ -62,7 +63,7 @@ def damage(vol, offsets, slot, status, weight, initial, n_owned, out):
         out[p] = 1.0 - s / initial[p] if initial[p] > 0.0 else 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def break_stretched(x, x0, offsets, slot, status, s0, n_owned):
     """Break every intact bond whose stretch s = (|Y| - |X|)/|X| exceeds s0 (003 eq. 4.8,
     irreversible). Returns the number of half-bonds broken."""

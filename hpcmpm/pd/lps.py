@@ -26,7 +26,7 @@ from numba import njit
 from .geometry import bond_vectors, norm3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lps_weighted_volume(x0, vol, offsets, slot, status, weight, n_owned, m):
     """m_p = sum_q w |X|^2 V_q over intact bonds."""
     dim = x0.shape[1]
@@ -44,7 +44,7 @@ def lps_weighted_volume(x0, vol, offsets, slot, status, weight, n_owned, m):
         m[p] = s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lps_dilatation(x, x0, vol, offsets, slot, status, weight, m, s0, n_owned, theta):
     """Failure (stretch > s0 breaks) then theta_p = (d/m_p) sum_q w |X| e V_q. Returns the
     number of half-bonds broken."""
@@ -68,7 +68,7 @@ def lps_dilatation(x, x0, vol, offsets, slot, status, weight, m, s0, n_owned, th
     return broken
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _scalar_force(theta, m, e, xl, kappa, alpha_m, dim):
     """t of one end (without w): (d kappa theta/m)|X| + (alpha_m/m) (e - theta |X|/d)."""
     if m <= 0.0:
@@ -76,7 +76,7 @@ def _scalar_force(theta, m, e, xl, kappa, alpha_m, dim):
     return (dim * kappa * theta / m) * xl + (alpha_m / m) * (e - theta * xl / dim)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pair(x, x0, vol, p, q, dim, w, m, theta, kappa, alpha_m):
     """(a, Y): the force on p from the bond p-q is a Y; t_p + t_q is symmetric in p, q."""
     y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
@@ -88,7 +88,7 @@ def _pair(x, x0, vol, p, q, dim, w, m, theta, kappa, alpha_m):
     return w * t * (vol[p] * vol[q]) / yl, y0, y1, y2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lps_bond_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, mu, n_owned,
                     out):
     """The per-half-bond terms of `lps_forces`, out (nb, d) (verification)."""
@@ -108,7 +108,7 @@ def lps_bond_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, 
                 out[b, 2] = a * y2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lps_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, mu, n_owned, f):
     """f_p = sum_q w (t_p + t_q) V_p V_q Y/|Y| over intact bonds; m, theta of owned + halo."""
     dim = x.shape[1]
@@ -131,7 +131,7 @@ def lps_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, mu, n
             f[p, 2] = f2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lps_energy_density(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, mu,
                        n_owned, out):
     """W_p = kappa theta^2/2 + (alpha/2) sum_q w (e^d)^2 V_q."""

@@ -119,7 +119,7 @@ def critical_stretch_from_moduli(dim: int, G0: float, E: float, nu: float, delta
     return math.sqrt(5.0 * math.pi * G0 / (12.0 * E * delta))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def silling_askari_steps(x0, vol, rho, offsets, slot, status, weight, c, n_owned, out):
     """dt_p = sqrt(2 rho_p / sum_q V_q c w_pq / |X|) over intact bonds (Silling & Askari
     2005 eq. 17, without a safety factor); inf for a particle without bonds. Returns min."""

@@ -23,7 +23,7 @@ from numba import njit
 from .geometry import bond_vectors, norm3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pair(x, x0, vol, p, q, dim, c, w):
     """(a, y0, y1, y2, s): the force on p from the bond is a * Y."""
     y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
@@ -33,7 +33,7 @@ def _pair(x, x0, vol, p, q, dim, c, w):
     return c * s * w * (vol[p] * vol[q]) / yl, y0, y1, y2, s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pmb_forces(x, x0, vol, offsets, slot, status, weight, c, s0, n_owned, f):
     """Failure then bond forces of the owned points. Writes f (n_owned, d); returns the number
     of half-bonds broken this call."""
@@ -61,7 +61,7 @@ def pmb_forces(x, x0, vol, offsets, slot, status, weight, c, s0, n_owned, f):
     return broken
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pmb_bond_forces(x, x0, vol, offsets, slot, status, weight, c, n_owned, out):
     """Force on the owner of each intact half-bond (0 for broken ones), out (nb, d): the
     per-bond terms `pmb_forces` sums (verification of exact cancellation and plane fluxes)."""
@@ -79,7 +79,7 @@ def pmb_bond_forces(x, x0, vol, offsets, slot, status, weight, c, n_owned, out):
                 out[b, 2] = a_ * y2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pmb_energy_density(x, x0, offsets, slot, status, weight, vol, c, n_owned, out):
     """W_p = 1/4 sum_q c w s^2 |X| V_q over intact bonds (energy per volume)."""
     dim = x.shape[1]
