@@ -246,6 +246,12 @@ def _search(x0, n_owned, sorted_keys, order, cell_lo, ncell, radius, delta, dx, 
     dim = x0.shape[1]
     r2 = radius * radius
     c = np.empty(3, dtype=np.int64)
+    cracks = seg.shape[0] > 0 or len(poly_off) > 1
+    # Positions in cell order: the candidates of a row of cells are contiguous in memory.
+    xs = np.empty_like(x0)
+    for s in range(len(order)):
+        for a in range(dim):
+            xs[s, a] = x0[order[s], a]
     lo1, hi1 = (-1, 2) if dim == 3 else (0, 1)
     for i in range(n_owned):
         for a in range(dim):
@@ -271,14 +277,14 @@ def _search(x0, n_owned, sorted_keys, order, cell_lo, ncell, radius, delta, dx, 
                 kmin = row + max(cz - 1, 0)
                 kmax = row + min(cz + 1, last - 1)
                 s = _lower_bound(sorted_keys, kmin)
-                while s < len(sorted_keys) and sorted_keys[s] <= kmax:
+                e = _lower_bound(sorted_keys, kmax + 1)
+                for s in range(s, e):
                     j = order[s]
-                    s += 1
                     if j == i:
                         continue
                     d2 = 0.0
                     for a in range(dim):
-                        t = x0[j, a] - x0[i, a]
+                        t = xs[s, a] - x0[i, a]
                         d2 += t * t
                     if pv:
                         if d2 >= r2:
@@ -289,7 +295,7 @@ def _search(x0, n_owned, sorted_keys, order, cell_lo, ncell, radius, delta, dx, 
                     w = influence(code, r, delta) * partial_volume(r, delta, dx, pv)
                     if w <= 0.0:
                         continue
-                    if _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
+                    if cracks and _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
                         continue
                     if not count_only:
                         slot[k] = j
