@@ -149,6 +149,29 @@ class Bonds:
                 new = np.full(m, -1 if name == "slot" else 0, dtype=arr.dtype)
             self._set(name, np.concatenate([arr, np.asarray(new, dtype=arr.dtype)]))
 
+    def merge(self, rows, partner, weight, status=None) -> None:
+        """Add half-bonds to existing rows (a particle converted to PD next to existing PD
+        particles gives them new partners, issue 11): ``rows[k]`` gains the half-bond
+        ``partner[k]`` with ``weight[k]``; every segment stays ordered by partner id. State
+        arrays start at 0 and slots unresolved for the new half-bonds."""
+        rows = np.asarray(rows, dtype=np.int64)
+        partner = np.asarray(partner, dtype=np.int64)
+        m = len(rows)
+        if m == 0:
+            return
+        status = np.ones(m, np.int8) if status is None else np.asarray(status, np.int8)
+        owner = np.concatenate([np.repeat(np.arange(self.n), self.counts()), rows])
+        new = {"partner": partner, "weight": np.asarray(weight, np.float64), "status": status,
+               "slot": np.full(m, -1, np.int32)}
+        new.update({"state." + k: np.zeros(m) for k in self.state})
+        all_partner = np.concatenate([self.partner, partner])
+        order = np.lexsort((all_partner, owner))
+        if np.any((np.diff(owner[order]) == 0) & (np.diff(all_partner[order]) == 0)):
+            raise ValueError("merge would duplicate a bond")
+        for name, arr in self._arrays().items():
+            self._set(name, np.concatenate([arr, new[name].astype(arr.dtype)])[order])
+        self.offsets = _offsets(np.bincount(owner, minlength=self.n))
+
     def _set(self, name: str, arr: np.ndarray) -> None:
         if name.startswith("state."):
             self.state[name[6:]] = np.ascontiguousarray(arr)

@@ -178,6 +178,18 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
                   influence, image_source, image_shift)
 
 
+def half_bonds_per_particle(dim: int, delta_in_spacings: float,
+                            partial_volumes: bool = True) -> int:
+    """Half-bonds of an interior particle of a cubic lattice: the memory estimate the
+    scene validator makes before allocating (bytes = this * n * Bonds.resident_bytes)."""
+    r = delta_in_spacings + 0.5 if partial_volumes else delta_in_spacings
+    k = int(math.ceil(r))
+    axis = np.arange(-k, k + 1)
+    d2 = sum(np.meshgrid(*[axis * axis] * dim, indexing="ij"))
+    inside = (d2 < r * r) if partial_volumes else (d2 <= r * r)
+    return int(inside.sum()) - 1
+
+
 def periodic_images(x0, lo, period, reach):
     """Images of points within ``reach`` of the faces of the periodic box [lo, lo + period)
     (period 0: not periodic). Returns (source rows (m,) int64, shifts (m, d))."""

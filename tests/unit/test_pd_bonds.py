@@ -74,3 +74,15 @@ def test_resolve_slots_finds_rows_and_nearest_periodic_image():
 
 def test_intact_counts():
     assert small_bonds().intact_counts().tolist() == [1, 0, 3]
+
+
+def test_merge_keeps_segments_ordered_by_partner_id():
+    b = small_bonds()
+    b.merge([0, 2, 1], [5, 12, 20], [0.1, 0.2, 0.3])
+    assert segment(b, 0) == ([5, 11, 12], [0.1, 0.5, 1.0], [1, 1, 0], [0.0, 1.0, 2.0])
+    assert segment(b, 1) == ([20], [0.3], [1], [0.0])
+    assert segment(b, 2) == ([10, 11, 12, 13], [0.25, 0.75, 0.2, 1.0], [1, 1, 1, 1],
+                             [3.0, 4.0, 0.0, 5.0])
+    import pytest
+    with pytest.raises(ValueError, match="duplicate"):
+        b.merge([0], [11], [1.0])

@@ -160,3 +160,12 @@ def test_pmb_constants_equal_the_issue_closed_forms():
         moduli.critical_stretch(3, 0.0, 1.0, delta)
     with pytest.raises(ValueError, match="below one particle spacing"):
         find_families(np.zeros((2, 2)), np.arange(2), 2, 1.0, 0.5)
+
+
+def test_half_bond_estimate_matches_an_interior_family():
+    from hpcmpm.pd.families import half_bonds_per_particle
+    for dim, pv in ((2, True), (3, True), (3, False)):
+        x0 = np.stack(np.meshgrid(*[np.arange(9.0)] * dim, indexing="ij"), -1).reshape(-1, dim)
+        fam = find_families(x0, np.arange(len(x0)), len(x0), 1.0, 3.015, partial_volumes=pv)
+        centre = int(np.argmin(np.linalg.norm(x0 - 4.0, axis=1)))
+        assert half_bonds_per_particle(dim, 3.015, pv) == fam.bonds.counts()[centre]
