@@ -140,7 +140,7 @@ def main() -> None:
         pts = PDPoints(g, x, vol, ids, len(g), b)
         lps.setup(pts)
         theta = np.zeros(len(g))
-        m = lps.m
+        m = pts.fields["m"]
         rate_cl, _ = best_rate(lambda: ceiling_lps(x, b.offsets, slot, r0, m, 1.0, 9.0, theta,
                                                    f), nb, args.repeat)
 

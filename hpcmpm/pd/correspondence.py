@@ -85,6 +85,10 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
             if status[b] == 0:
                 continue
             q = slot[b]
+            if q < 0:               # partner beyond the halo reach (pmb.py)
+                status[b] = 0
+                broken += 1
+                continue
             Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, q, dim)
             xl = norm3(Xv[0], Xv[1], Xv[2])
             if (norm3(Yv[0], Yv[1], Yv[2]) - xl) / xl > s0:
@@ -224,6 +228,7 @@ class Correspondence:
     """
 
     name = "correspondence"
+    persistent_fields: tuple[str, ...] = ()
     halo_fields = ("A", "F", "active")
 
     def __init__(self, dim: int, stress=None, stabilization_modulus: float = 0.0,
@@ -238,7 +243,14 @@ class Correspondence:
         return self.c_dt
 
     def setup(self, pts) -> None:
-        n, d = len(pts.x), self.dim
+        self.F = np.empty((0, self.dim, self.dim))
+        self.resize(len(pts.x))
+
+    def resize(self, n: int) -> None:
+        """Scratch for n owned + halo points."""
+        if len(self.F) == n:
+            return
+        d = self.dim
         self.F = np.zeros((n, d, d))
         self.F[:] = np.eye(d)
         self.Kinv = np.zeros((n, d, d))

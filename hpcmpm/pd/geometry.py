@@ -73,6 +73,10 @@ def break_stretched(x, x0, offsets, slot, status, s0, n_owned):
         for b in range(offsets[p], offsets[p + 1]):
             if status[b] == 0:
                 continue
+            if slot[b] < 0:         # partner beyond the halo reach (pmb.py)
+                status[b] = 0
+                broken += 1
+                continue
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, slot[b], dim)
             xl = norm3(X0, X1, X2)
             if (norm3(y0, y1, y2) - xl) / xl > s0:

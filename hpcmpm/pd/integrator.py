@@ -8,7 +8,7 @@ forces (003 eq. 4.1 times V_p), then symplectic Euler v += dt (f + b V)/m, x += 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -23,7 +23,9 @@ class PDPoints:
     """Owned points (rows ``0..n_owned-1``) followed by halo points, as the kernels see them.
 
     x0, x : (n, d) reference and current positions; vol : (n,) volumes; ids : (n,) global ids;
-    bonds : the owned points' half-bonds (slots index these rows)."""
+    bonds : the owned points' half-bonds (slots index these rows); fields : persistent
+    per-point model fields (owned + halo rows, e.g. the LPS weighted volume "m"), which move
+    and checkpoint with their particles."""
 
     x0: np.ndarray
     x: np.ndarray
@@ -31,6 +33,7 @@ class PDPoints:
     ids: np.ndarray
     n_owned: int
     bonds: Bonds
+    fields: dict = field(default_factory=dict)
 
 
 class PDBody:
@@ -74,6 +77,8 @@ class PDBody:
         self.steps = 0
         self.refresh_halo_positions()
         model.setup(self.pts)
+        for arr in self.pts.fields.values():
+            arr[n:] = arr[self.src]
         self._refresh_halo_state()
         b = self.pts.bonds
         self.initial_weighted_volume = np.empty(n)

@@ -56,6 +56,10 @@ def lps_dilatation(x, x0, vol, offsets, slot, status, weight, m, s0, n_owned, th
             if status[b] == 0:
                 continue
             q = slot[b]
+            if q < 0:               # partner beyond the halo reach (pmb.py)
+                status[b] = 0
+                broken += 1
+                continue
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
             xl = norm3(X0, X1, X2)
             e = norm3(y0, y1, y2) - xl
@@ -152,8 +156,10 @@ def lps_energy_density(x, x0, vol, offsets, slot, status, weight, m, theta, kapp
 
 
 class LPS:
-    """LPS model over a points view (integrator.PDPoints): per-particle ``m`` (fixed, set-up)
-    and ``theta`` (each step), both refreshed in the halo (`halo_fields`).
+    """LPS model over a points view (integrator.PDPoints): the weighted volume m is a
+    persistent per-particle field (``pts.fields["m"]``, computed at set-up, moves with its
+    particle, shipped once per halo build); theta is recomputed each step and refreshed in the
+    halo (`halo_fields`).
 
     Parameters
     ----------
@@ -164,7 +170,8 @@ class LPS:
     """
 
     name = "lps"
-    halo_fields = ("m", "theta")
+    persistent_fields = ("m",)
+    halo_fields = ("theta",)
 
     def __init__(self, bulk: float, mu: float, critical_stretch: float = math.inf,
                  time_step_c: float = 0.0):
@@ -172,35 +179,38 @@ class LPS:
         self.mu = float(mu)
         self.s0 = float(critical_stretch)
         self.c_dt = float(time_step_c)
-        self.m = np.empty(0)
         self.theta = np.empty(0)
 
     def time_step_micromodulus(self) -> float:
         return self.c_dt
 
     def setup(self, pts) -> None:
-        """m over the current intact bonds of the owners (halo rows: caller refreshes)."""
-        n = len(pts.x)
-        self.m = np.zeros(n)
-        self.theta = np.zeros(n)
+        """m over the current intact bonds of the owners (halo rows: the caller fills them)."""
+        m = pts.fields.setdefault("m", np.zeros(len(pts.x)))
         b = pts.bonds
         lps_weighted_volume(pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                            pts.n_owned, self.m)
+                            pts.n_owned, m)
+        self.resize(len(pts.x))
+
+    def resize(self, n: int) -> None:
+        """Scratch for n owned + halo points."""
+        if len(self.theta) != n:
+            self.theta = np.zeros(n)
 
     def update_state(self, pts) -> int:
         b = pts.bonds
         return lps_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                              self.m, self.s0, pts.n_owned, self.theta)
+                              pts.fields["m"], self.s0, pts.n_owned, self.theta)
 
     def forces(self, pts, f) -> int:
         b = pts.bonds
-        lps_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight, self.m,
-                   self.theta, self.kappa, self.mu, pts.n_owned, f)
+        lps_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                   pts.fields["m"], self.theta, self.kappa, self.mu, pts.n_owned, f)
         return 0
 
     def energy_density(self, pts, out=None) -> np.ndarray:
         b = pts.bonds
         out = np.empty(pts.n_owned) if out is None else out
         lps_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                           self.m, self.theta, self.kappa, self.mu, pts.n_owned, out)
+                           pts.fields["m"], self.theta, self.kappa, self.mu, pts.n_owned, out)
         return out

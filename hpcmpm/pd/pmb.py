@@ -10,7 +10,8 @@ sign and reuses K for the micromodulus). With the influence weight and partial v
 and the strain energy density W_p = 1/4 sum_q c w_pq s^2 |X| V_q (half of each pair's
 micropotential c s^2 |X| / 2). Failure (003 eq. 4.8) is tested in the force loop before the
 bond's force, so a bond that first exceeds s0 carries no force in that step, and both ends
-decide from bitwise equal stretches (geometry.py).
+decide from bitwise equal stretches (geometry.py). An intact bond whose partner is not in the
+halo (slot -1) has stretched past the halo's reach and breaks (hpcmpm/parallel/pd_halo.py).
 """
 
 from __future__ import annotations
@@ -45,6 +46,12 @@ def pmb_forces(x, x0, vol, offsets, slot, status, weight, c, s0, n_owned, f):
         f2 = 0.0
         for b in range(offsets[p], offsets[p + 1]):
             if status[b] == 0:
+                continue
+            if slot[b] < 0:
+                # Partner outside the halo: stretched past the halo reach (halo.py), which
+                # breaks at any rank count.
+                status[b] = 0
+                broken += 1
                 continue
             a, y0, y1, y2, s = _pair(x, x0, vol, p, slot[b], dim, c, weight[b])
             if s > s0:
@@ -106,6 +113,7 @@ class PMB:
     """
 
     name = "pmb"
+    persistent_fields: tuple[str, ...] = ()
     halo_fields: tuple[str, ...] = ()
 
     def __init__(self, c: float, critical_stretch: float = math.inf):
@@ -116,6 +124,9 @@ class PMB:
         return self.c
 
     def setup(self, pts) -> None:
+        pass
+
+    def resize(self, n: int) -> None:
         pass
 
     def update_state(self, pts) -> int:

@@ -36,7 +36,7 @@ def bond_terms(body):
     if m.name == "pmb":
         pmb_bond_forces(*args, m.c, p.n_owned, out)
     elif m.name == "lps":
-        lps_bond_forces(*args, m.m, m.theta, m.kappa, m.mu, p.n_owned, out)
+        lps_bond_forces(*args, p.fields["m"], m.theta, m.kappa, m.mu, p.n_owned, out)
     else:
         correspondence_bond_forces(*args, m.A, m.F, m.active, m.G, p.n_owned, out)
     return out

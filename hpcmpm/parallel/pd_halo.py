@@ -1,0 +1,162 @@
+"""Peridynamic bonds across ranks: a reusable particle-halo plan and bond migration.
+
+Reach. A bond p-q with p owned here is intact only while its stretch s <= s_reach (the
+critical stretch, or the scene's ``max_bond_stretch``, beyond which every model breaks it), so
+its partner lies within ``reach = radius (1 + s_reach)`` of the owned box (radius: the family
+search radius, delta + dx/2 with partial volumes). The plan ships every PD particle within
+``reach + skin`` of each neighbour's box (periodic images shifted by the period, when the
+domain has periodic axes) and is reused until some particle moved more than skin/2 since it
+was built, or PD particles changed rank. Between rebuilds only values are refreshed along the
+same send lists. A partner missing from the halo is then more than ``reach`` away, so its bond
+has s > s_reach and breaks at any rank count (the model kernels treat slot -1 so): no bond is
+ever dropped because of the decomposition (LAMMPS PERI drops them, pair_peri_*.cpp).
+
+Migration. `migrate_with_bonds` sends each leaving particle's bond segment (partner ids,
+status, weights, per-bond state) to its new owner alongside `Domain.migrate`, and realigns
+the bond rows with the particle rows by id.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .decomposition import points_in_boxes
+from .exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
+
+TAG_PD_HALO, TAG_PD_SEGMENTS, TAG_PD_BONDS = 111, 112, 113
+
+
+class PDHalo:
+    """The PD particle halo of one rank.
+
+    Parameters
+    ----------
+    domain : the `Domain` (boxes, communicator, and periodic ``shifts`` when it has them).
+    reach : radius (1 + s_reach): the farthest an intact bond's partner can be.
+    skin : extra distance shipped so the plan survives motions up to skin / 2.
+    shifted : names of fields that are positions (an image adds the period to them).
+    """
+
+    def __init__(self, domain, reach: float, skin: float, shifted=("x", "x0")):
+        self.domain = domain
+        self.reach = float(reach)
+        self.skin = float(skin)
+        self.shifted = tuple(shifted)
+        self.builds = 0
+        self.send_index = np.empty(0, np.int64)
+        self.send_shift = np.empty((0, domain.dim))
+        self.send_counts = np.zeros(domain.size, np.int64)
+        self.recv_counts = np.zeros(domain.size, np.int64)
+        self.x_built = np.empty((0, domain.dim))
+
+    @property
+    def n_halo(self) -> int:
+        return int(self.recv_counts.sum())
+
+    def build(self, x: np.ndarray, fields: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Plan the halo from my PD particles' positions ``x`` (n, d) and ship ``fields``
+        (per-particle arrays, e.g. id, x, x0, vol) once. Collective. Returns the halo copies,
+        grouped by source rank."""
+        d = self.domain
+        r = self.reach + self.skin
+        lo = d.domain_lo + d.boxes[:, 0].astype(np.float64) * d.dx
+        hi = d.domain_lo + d.boxes[:, 1].astype(np.float64) * d.dx
+        shifts = getattr(d, "shifts", np.zeros((1, d.dim), np.int64)) * d.dx
+        me = d.rank
+        pairs = [(q, s) for q in range(d.size) for s in range(len(shifts))
+                 if (q != me or shifts[s].any())
+                 and np.max(np.maximum(lo[q] - shifts[s] - hi[me],
+                                       lo[me] - hi[q] + shifts[s])) <= r]
+        q_of = np.array([q for q, _ in pairs], dtype=np.int64)
+        offset = np.array([shifts[s] for _, s in pairs], dtype=np.float64).reshape(-1, d.dim)
+        counts, index = points_in_boxes(np.ascontiguousarray(x), lo[q_of] - offset - r,
+                                        hi[q_of] - offset + r)
+        self.send_index = index
+        self.send_shift = np.repeat(offset, counts, axis=0)
+        self.send_counts = np.bincount(q_of, weights=counts, minlength=d.size).astype(np.int64)
+        self.recv_counts = np.empty(d.size, np.int64)
+        d.comm.Alltoall(self.send_counts, self.recv_counts)
+        self.x_built = np.array(x, dtype=np.float64, copy=True)
+        self.builds += 1
+        return self.refresh(fields)
+
+    def stale(self, x: np.ndarray) -> bool:
+        """True on every rank when some PD particle moved more than skin/2 since the build.
+        Collective."""
+        moved = 0.0
+        if len(x) and len(x) == len(self.x_built):
+            moved = float(np.sqrt(((x - self.x_built) ** 2).sum(axis=1)).max())
+        elif len(x) != len(self.x_built):
+            moved = np.inf
+        return bool(self.domain.max(moved) > 0.5 * self.skin)
+
+    def refresh(self, fields: dict[str, np.ndarray], out: dict[str, np.ndarray] | None = None
+                ) -> dict[str, np.ndarray]:
+        """Current values of ``fields`` (per-particle arrays of my PD rows) for the halo rows,
+        along the plan's send lists. Writes into ``out[name]`` (n_halo, ...) when given.
+        Collective."""
+        arrays = {k: np.ascontiguousarray(v) for k, v in fields.items()}
+        send = pack_rows(arrays, self.send_index, row_dtype(arrays))
+        for name in self.shifted:
+            if name in arrays and len(send):
+                send[name] += self.send_shift
+        recv = exchange_rows(self.domain.comm, send, self.send_counts, self.recv_counts,
+                             TAG_PD_HALO)
+        got = unpack_rows(recv)
+        if out is None:
+            return {k: np.ascontiguousarray(v) for k, v in got.items()}
+        for k, v in got.items():
+            out[k][...] = v
+        return out
+
+
+def migrate_with_bonds(domain, particles, bonds) -> int:
+    """`Domain.migrate` for a set whose rows all carry bonds: each leaver's bond segment goes
+    to its new owner; afterwards ``bonds`` rows follow ``particles`` rows (matched by id).
+    Returns the number of particles that changed rank on any rank (collective)."""
+    me = domain.rank
+    ids = particles["id"]
+    dest = domain.owners(particles["x"]) if domain.size > 1 else np.full(len(ids), me)
+    leaving = np.flatnonzero(dest != me)
+    order = leaving[np.argsort(dest[leaving], kind="stable")]
+    seg_counts_send = np.bincount(dest[order], minlength=domain.size).astype(np.int64)
+    counts, arrays = bonds.extract(order)
+    bond_dest = np.repeat(dest[order], counts)
+    bond_counts_send = np.bincount(bond_dest, minlength=domain.size).astype(np.int64)
+    domain.migrate(particles)
+    total = int(domain.sum(int(len(order))))
+    if total == 0:
+        return 0
+    seg_counts_recv = np.empty(domain.size, np.int64)
+    bond_counts_recv = np.empty(domain.size, np.int64)
+    domain.comm.Alltoall(seg_counts_send, seg_counts_recv)
+    domain.comm.Alltoall(bond_counts_send, bond_counts_recv)
+    seg = {"id": ids[order], "count": counts}
+    seg_recv = unpack_rows(exchange_rows(domain.comm, pack_rows(seg, np.arange(len(order)),
+                                                                row_dtype(seg)),
+                                         seg_counts_send, seg_counts_recv, TAG_PD_SEGMENTS))
+    arrays = {k.replace(".", "__"): v for k, v in arrays.items()}
+    bond_recv = unpack_rows(exchange_rows(domain.comm,
+                                          pack_rows(arrays, np.arange(len(bond_dest)),
+                                                    row_dtype(arrays)),
+                                          bond_counts_send, bond_counts_recv, TAG_PD_BONDS))
+    stay = np.ones(len(ids), dtype=bool)
+    stay[order] = False
+    row_ids = np.concatenate([ids[stay], seg_recv["id"]])
+    bonds.keep(stay)
+    bonds.append(seg_recv["count"], {k.replace("__", "."): np.ascontiguousarray(v)
+                                     for k, v in bond_recv.items()})
+    align_rows(bonds, row_ids, particles["id"])
+    return total
+
+
+def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
+    """Permute ``bonds`` (rows named by ``row_ids``) into the order ``target_ids``."""
+    sorter = np.argsort(row_ids, kind="stable")
+    pos = sorter[np.searchsorted(row_ids, target_ids, sorter=sorter)]
+    if not np.array_equal(row_ids[pos], target_ids):
+        raise RuntimeError("bond rows and particle rows hold different ids")
+    bonds.permute(pos)
+
+
+__all__ = ["PDHalo", "migrate_with_bonds", "align_rows"]
