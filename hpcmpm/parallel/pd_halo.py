@@ -115,7 +115,7 @@ def migrate_with_bonds(domain, particles, bonds) -> int:
     to its new owner; afterwards ``bonds`` rows follow ``particles`` rows (matched by id).
     Returns the number of particles that changed rank on any rank (collective)."""
     me = domain.rank
-    ids = particles["id"]
+    ids = particles["id"].copy()      # migrate reorders the rows in place
     dest = domain.owners(particles["x"]) if domain.size > 1 else np.full(len(ids), me)
     leaving = np.flatnonzero(dest != me)
     order = leaving[np.argsort(dest[leaving], kind="stable")]

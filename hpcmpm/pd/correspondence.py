@@ -238,12 +238,12 @@ class Correspondence:
         self.G = float(stabilization_modulus)
         self.s0 = float(critical_stretch)
         self.c_dt = float(time_step_c)
+        self.F = np.empty((0, dim, dim))
 
     def time_step_micromodulus(self) -> float:
         return self.c_dt
 
     def setup(self, pts) -> None:
-        self.F = np.empty((0, self.dim, self.dim))
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
