@@ -13,7 +13,10 @@ ever dropped because of the decomposition (LAMMPS PERI drops them, pair_peri_*.c
 
 Migration. `migrate_with_bonds` sends each leaving particle's bond segment (partner ids,
 status, weights, per-bond state) to its new owner alongside `Domain.migrate`, and realigns
-the bond rows with the particle rows by id.
+the bond rows with the particle rows by id. `redistribute_segments` does the same after the
+fact, for particles that moved by a route that does not know about bonds (the engine's
+migration and rebalancing): the ranks that miss segments name the ids, their old holders send
+them.
 """
 
 from __future__ import annotations
@@ -150,6 +153,49 @@ def migrate_with_bonds(domain, particles, bonds) -> int:
     return total
 
 
+def redistribute_segments(domain, bonds, row_ids: np.ndarray, target_ids: np.ndarray
+                          ) -> np.ndarray:
+    """After particles moved between ranks by any route (migration, rebalance, restart):
+    each rank sends the segments of rows it no longer holds to the ranks that now hold those
+    particles, then the bond rows follow ``target_ids`` (this rank's PD particle ids in row
+    order). Collective; only the ids of the arrivals travel to every rank. Returns the new
+    row ids (= target_ids)."""
+    row_ids = np.asarray(row_ids, dtype=np.int64)
+    target_ids = np.asarray(target_ids, dtype=np.int64)
+    missing = np.setdiff1d(target_ids, row_ids)
+    wanted = domain.allgather(missing)
+    orphan = ~np.isin(row_ids, target_ids)
+    rows, dest = [], []
+    for r, ids_r in enumerate(wanted):
+        if r == domain.rank or not len(ids_r):
+            continue
+        hit = np.flatnonzero(orphan & np.isin(row_ids, ids_r))
+        rows.append(hit)
+        dest.append(np.full(len(hit), r, np.int64))
+    rows = np.concatenate(rows) if rows else np.empty(0, np.int64)
+    dest = np.concatenate(dest) if dest else np.empty(0, np.int64)
+    counts, arrays = bonds.extract(rows)
+    seg_send = np.bincount(dest, minlength=domain.size).astype(np.int64)
+    bond_send = np.bincount(np.repeat(dest, counts), minlength=domain.size).astype(np.int64)
+    seg_recv = np.empty(domain.size, np.int64)
+    bond_recv = np.empty(domain.size, np.int64)
+    domain.comm.Alltoall(seg_send, seg_recv)
+    domain.comm.Alltoall(bond_send, bond_recv)
+    seg = {"id": row_ids[rows], "count": counts}
+    got_seg = unpack_rows(exchange_rows(domain.comm, pack_rows(seg, np.arange(len(rows)),
+                                                               row_dtype(seg)),
+                                        seg_send, seg_recv, TAG_PD_SEGMENTS))
+    arrays = {k.replace(".", "__"): v for k, v in arrays.items()}
+    got = unpack_rows(exchange_rows(domain.comm, pack_rows(arrays, np.arange(int(counts.sum())),
+                                                           row_dtype(arrays)),
+                                    bond_send, bond_recv, TAG_PD_BONDS))
+    bonds.keep(~orphan)
+    bonds.append(got_seg["count"], {k.replace("__", "."): np.ascontiguousarray(v)
+                                    for k, v in got.items()})
+    align_rows(bonds, np.concatenate([row_ids[~orphan], got_seg["id"]]), target_ids)
+    return target_ids.copy()
+
+
 def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
     """Permute ``bonds`` (rows named by ``row_ids``) into the order ``target_ids``."""
     sorter = np.argsort(row_ids, kind="stable")
@@ -159,4 +205,4 @@ def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
     bonds.permute(pos)
 
 
-__all__ = ["PDHalo", "migrate_with_bonds", "align_rows"]
+__all__ = ["PDHalo", "migrate_with_bonds", "redistribute_segments", "align_rows"]
