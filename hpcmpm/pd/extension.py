@@ -28,7 +28,7 @@ import numpy as np
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .families import find_families
 from .geometry import damage, weighted_volume_sums
-from .integrator import PDPoints
+from .integrator import PDPoints, bond_forces
 
 log = logging.getLogger(__name__)
 
@@ -139,15 +139,9 @@ class PDExtension:
     def compute_forces(self, start, stop) -> np.ndarray:
         """Failure, state (with the state halo) and bond forces of the rows [start, stop)."""
         n = stop - start
-        self.broken += self.model.update_state(self.pts)
-        names = self.model.halo_fields
-        if names:
-            fields = {k: getattr(self.model, k) for k in names}
-            self.halo.refresh({k: a[:n] for k, a in fields.items()},
-                              {k: a[n:] for k, a in fields.items()})
         if len(self.force) != n:
             self.force = np.empty((n, self.sim.dim))
-        self.broken += self.model.forces(self.pts, self.force)
+        self.broken += bond_forces(self.model, self.pts, self.force, self.halo.refresh_rows(n))
         return self.force
 
     def write_damage(self, start, stop) -> None:
