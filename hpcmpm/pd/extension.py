@@ -22,6 +22,7 @@ set, so particles that become PD later get their x0 when they do).
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 
@@ -34,7 +35,8 @@ log = logging.getLogger(__name__)
 
 
 class PDExtension:
-    """The PD state of one material on one rank (module docstring)."""
+    """The PD state of one material on one rank (module docstring); bonds checkpoint with
+    `CheckpointedBonds` (below)."""
 
     def __init__(self, sim, material):
         self.sim = sim
@@ -115,6 +117,8 @@ class PDExtension:
         if self.bonds is None:
             self._initialize(start, stop)
             return start, stop
+        if self.pts is None:         # bonds restored from a checkpoint
+            self._rebuild(start, stop)
         ids = self.sim.particles["id"][start:stop]
         moved = domain.any(not np.array_equal(ids, self.bond_ids))
         if moved:
@@ -156,7 +160,78 @@ class PDExtension:
                stop - start, p["damage"][start:stop])
 
 
-class PDBodyExtension(PDExtension):
+class _HalfBondRows:
+    """Half-bonds as rows for `hpcmpm.io.checkpoint.write_checkpoint` (its particle-set
+    interface): owner id, partner id, weight, status and the per-bond state."""
+
+    def __init__(self, dim: int, arrays: dict[str, np.ndarray]):
+        self.dim = dim
+        self.arrays = arrays
+        self.n = len(arrays["owner"])
+
+    def field_names(self) -> list[str]:
+        return list(self.arrays)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+
+def bonds_folder(out_dir, material_name: str) -> Path:
+    """Where a PD material's bonds are checkpointed, beside the particle checkpoints."""
+    return Path(out_dir) / f"pd_bonds_{material_name}"
+
+
+class CheckpointedBonds:
+    """Bonds in checkpoints (mixin of PDExtension): ``pd_bonds_<material>/ckpt_<step>.h5``
+    beside the particle checkpoint, written before it (a particle checkpoint that exists has
+    its bonds), read back on any rank count and routed to the particles' new owners."""
+
+    def write_checkpoint(self, out_dir, step: int, keep: int) -> None:
+        from ..io.checkpoint import write_checkpoint
+
+        b = self.bonds
+        if b is None:
+            from .bonds import Bonds
+            b = Bonds.empty(0)
+        arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
+                  "weight": b.weight, "status": b.status,
+                  **{f"state.{k}": v for k, v in b.state.items()}}
+        meta = {"step": int(step), "time": float(self.sim.time),
+                "initialized": self.bonds is not None}
+        write_checkpoint(bonds_folder(out_dir, self.material.spec.name), self.sim.domain,
+                         _HalfBondRows(self.sim.dim, arrays), meta, keep=keep)
+
+    def restore(self, particle_checkpoint) -> None:
+        """Bonds of the particle checkpoint at this path (collective); the first step then
+        builds the halo instead of new families."""
+        from ..io.checkpoint import read_checkpoint
+        from ..parallel.pd_halo import route_half_bonds
+        from .bonds import Bonds
+
+        path = Path(particle_checkpoint)
+        rows, meta = read_checkpoint(bonds_folder(path.parent, self.material.spec.name)
+                                     / path.name, self.sim.domain)
+        if not meta.get("initialized", False):
+            return
+        p = self.sim.particles
+        # Rows of this material in their current order, without sorting (a sort now would
+        # change a grid scene's summation order against the uninterrupted run).
+        ids = p["id"][p["group"] == self.group].copy()
+        rows = route_half_bonds(self.sim.domain, rows, ids)
+        row_of = {int(i): k for k, i in enumerate(ids)}
+        owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
+        order = np.lexsort((rows["partner"], owner_row))
+        offsets = np.zeros(len(ids) + 1, np.int64)
+        np.cumsum(np.bincount(owner_row, minlength=len(ids)), out=offsets[1:])
+        self.bonds = Bonds(offsets, rows["partner"][order], rows["weight"][order],
+                           rows["status"][order],
+                           state={k[6:]: v[order] for k, v in rows.items()
+                                  if k.startswith("state.")})
+        self.bond_ids = ids
+        self.pts = None
+
+
+class PDBodyExtension(CheckpointedBonds, PDExtension):
     """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles."""
 
     def after_g2p(self, sim, dt: float) -> None:
@@ -170,7 +245,7 @@ class PDBodyExtension(PDExtension):
             self.write_damage(start, stop)
 
 
-class IntegralMPMExtension(PDExtension):
+class IntegralMPMExtension(CheckpointedBonds, PDExtension):
     """``integration = "grid"``: bond forces through the force channel (003 eq. 5.2)."""
 
     def particle_forces(self, sim, dt: float):
