@@ -379,7 +379,7 @@ def test_validate_params_messages():
     assert validate_params("snow", {"E": 1, "nu": 0.2, "theta_c": 1.0, "theta_s": -1,
                                     "xi": "ten"}) == \
         ["theta_c: must be < 1, got 1", "theta_s: must be >= 0, got -1",
-         "xi: must be a number, got 'ten'"]
+         "xi: must be a number, got string 'ten'"]
     assert validate_params("weakly_compressible", {"E": 1, "nu": 0.3}) == \
         ["nu: unknown key (accepted: E)"]
     (problem,) = validate_params("neo_hookian", {})
