@@ -16,9 +16,9 @@ L, V0, PERIOD = 25.0, 0.1, 10.0
 VCM_AMPLITUDE = 2 * V0 / np.pi
 
 
-def run_bar(cells: int, transfer: str = "mls"):
+def run_bar(cells: int, transfer: str = "mls", path: str = "inputs/bar_2d.toml"):
     """Period and |v_cm| at half a period, measured from the v_cm(t) history."""
-    scene = load_scene("inputs/bar_2d.toml",
+    scene = load_scene(path,
                        [f"simulation.dx={L / cells}", "simulation.end_time=8.0",
                         f'simulation.transfer="{transfer}"'])
     history = []
