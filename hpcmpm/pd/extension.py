@@ -47,7 +47,8 @@ class PDExtension:
         prm = material.params
         self.radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
             else material.delta
-        self.halo = PDHalo(sim.domain, self.radius * (1.0 + prm["max_bond_stretch"]),
+        # s_reach = the critical stretch, or max_bond_stretch when smaller (the model's s0).
+        self.halo = PDHalo(sim.domain, self.radius * (1.0 + self.model.s0),
                            prm["skin"] * material.spacing)
         self.bonds = None
         self.bond_ids = np.empty(0, np.int64)
