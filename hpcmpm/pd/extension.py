@@ -71,7 +71,6 @@ class PDExtension:
         return out
 
     def _rebuild(self, start, stop) -> None:
-        p = self.sim.particles
         static = self._static(start, stop)
         halo = self.halo.build(static["x"], static)
         cat = lambda k: np.concatenate([static[k], halo[k]])  # noqa: E731
@@ -80,7 +79,6 @@ class PDExtension:
         if self.bonds is not None:
             self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
         self.model.resize(len(self.pts.x))
-        del p
 
     def _initialize(self, start, stop) -> None:
         """Families in the reference configuration (collective)."""
