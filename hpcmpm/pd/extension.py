@@ -22,12 +22,16 @@ set, so particles that become PD later get their x0 when they do).
 from __future__ import annotations
 
 import logging
+import math
+import os
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
-from .families import find_families
+from .bonds import Bonds
+from .families import find_families, half_bonds_per_particle
 from .geometry import damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 
@@ -80,8 +84,28 @@ class PDExtension:
             self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
         self.model.resize(len(self.pts.x))
 
+    def _check_memory(self, n: int) -> None:
+        """Refuse a horizon whose bonds would not fit: an estimate before allocating, from
+        an interior family's count (collective; the same SceneError on every rank)."""
+        per_particle = half_bonds_per_particle(
+            self.sim.dim, self.material.delta / self.material.spacing,
+            self.material.params["partial_volumes"])
+        need = n * per_particle * (Bonds.empty().resident_bytes_per_bond() + 4)
+        try:
+            memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (ValueError, OSError, AttributeError):
+            memory = math.inf
+        worst = self.sim.domain.max(float(need))
+        if worst > 0.5 * memory:
+            raise SceneError(
+                f"material {self.material.spec.name!r} (peridynamic): horizon: "
+                f"{per_particle} half-bonds per particle need about {worst / 2**30:.1f} GiB "
+                f"on one rank, more than half of its {memory / 2**30:.1f} GiB: lower the "
+                "horizon or use more ranks")
+
     def _initialize(self, start, stop) -> None:
         """Families in the reference configuration (collective)."""
+        self._check_memory(stop - start)
         p = self.sim.particles
         x0 = p["x0"][start:stop]
         unset = np.isnan(x0[:, 0])
@@ -188,10 +212,7 @@ class CheckpointedBonds:
     def write_checkpoint(self, out_dir, step: int, keep: int) -> None:
         from ..io.checkpoint import write_checkpoint
 
-        b = self.bonds
-        if b is None:
-            from .bonds import Bonds
-            b = Bonds.empty(0)
+        b = self.bonds if self.bonds is not None else Bonds.empty(0)
         arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
                   "weight": b.weight, "status": b.status,
                   **{f"state.{k}": v for k, v in b.state.items()}}
@@ -205,7 +226,6 @@ class CheckpointedBonds:
         builds the halo instead of new families."""
         from ..io.checkpoint import read_checkpoint
         from ..parallel.pd_halo import route_half_bonds
-        from .bonds import Bonds
 
         path = Path(particle_checkpoint)
         rows, meta = read_checkpoint(bonds_folder(path.parent, self.material.spec.name)

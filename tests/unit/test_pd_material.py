@@ -68,3 +68,16 @@ def test_pd_time_step_rule_and_off_grid_speed():
             if 0 < r < delta + h / 2:
                 k += h * h * c * min(1.0, (delta + h / 2 - r) / h) / r
     assert glass.dt_limit(0.02) == pytest.approx(0.8 * math.sqrt(2 * rho / k), rel=1e-12)
+
+
+def test_bonds_that_would_not_fit_are_refused_before_allocation(monkeypatch):
+    import os
+
+    from hpcmpm.runner import initial_particles
+    sim = sim_with("fracture_energy = 10.0", "fracture_energy = 10.0")
+    initial_particles(sim)
+    # A machine of 1 MiB: 1600 particles x 36 half-bonds x 25 B do not fit in half of it.
+    monkeypatch.setattr(os, "sysconf", lambda name: 1024 if name == "SC_PAGE_SIZE" else 1024)
+    sim.ensure_grouped()
+    with pytest.raises(SceneError, match="36 half-bonds per particle need about"):
+        sim.extensions[0].prepare()
