@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
+from .contact import ParticleWalls
 from .families import find_families, half_bonds_per_particle
 from .geometry import damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
@@ -251,7 +252,12 @@ class CheckpointedBonds:
 
 
 class PDBodyExtension(CheckpointedBonds, PDExtension):
-    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles."""
+    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles; the
+    domain walls act per particle (pd/contact.py; analytic colliders do not, yet)."""
+
+    def __init__(self, sim, material):
+        super().__init__(sim, material)
+        self.walls = ParticleWalls(sim.scene)
 
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
@@ -259,8 +265,10 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
             f = self.compute_forces(start, stop)
             p = sim.particles
             v = p["v"][start:stop]
+            x = p["x"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
-            p["x"][start:stop] += dt * v
+            self.walls.apply(x, v, dt)
+            x += dt * v
             self.write_damage(start, stop)
 
 

@@ -81,3 +81,16 @@ def test_bonds_that_would_not_fit_are_refused_before_allocation(monkeypatch):
     sim.ensure_grouped()
     with pytest.raises(SceneError, match="36 half-bonds per particle need about"):
         sim.extensions[0].prepare()
+
+
+@pytest.mark.parametrize("condition", ["slip", "sticky"])
+def test_off_grid_pd_body_stops_at_a_wall(condition):
+    from hpcmpm.runner import simulate
+    text = PLATE.replace('velocity = [-20.0, 0.0]', 'velocity = [0.0, -300.0]') \
+        .replace('velocity = [20.0, 0.0]', 'velocity = [0.0, -300.0]') \
+        .replace('default = "slip"', f'default = "{condition}"')
+    scene = parse_scene(text, path="plate.toml")
+    sim = simulate(scene, end_time=1.5e-3)      # 0.45 m of travel: the plate (at 0.3) lands
+    y = sim.particles["x"][:, 1]
+    # The lowest layer (at 0.3 + h/2 = 0.305 initially) reached the floor and stopped on it.
+    assert y.min() >= 0.0 and y.min() < 0.01
