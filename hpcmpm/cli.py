@@ -35,12 +35,10 @@ def configure_logging(quiet: bool = False) -> None:
 
 
 def _validate(args) -> int:
-    from .geometry import sample_scene
     from .scene import load_scene
+    from .startup import validate_report
 
-    scene = load_scene(args.scene, args.set or [])
-    n = len(sample_scene(scene)["id"])
-    print(f"{args.scene}: ok ({n} particles, {len(scene.materials)} materials, dim {scene.dim})")
+    print(validate_report(load_scene(args.scene, args.set or [])))
     return 0
 
 
@@ -113,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="checkpoint every HH:MM:SS of wall time")
     run.add_argument("--debug-checks", action="store_true",
                      help="check the global particle count every step")
+    run.add_argument("--dry-run", action="store_true",
+                     help="sample and decompose, report counts and memory per rank, exit")
     run.set_defaults(handler=_run)
 
     restart = verbs.add_parser("restart", help="continue from a checkpoint")
