@@ -1,7 +1,6 @@
 """Peridynamic bonds across a periodic axis: a strip that spans the period translates at
 constant velocity through several wraps with no internal force (its bonds wrap with it), and
-1, 2 and 4 ranks agree bitwise. Runs once periodic axes (the parallel branch's Domain and
-`simulation.periodic`) are on this tree; checked against that branch before it merged."""
+1, 2 and 4 ranks agree bitwise."""
 
 import os
 import subprocess
@@ -9,10 +8,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from hpcmpm.io.frames import read_frame
-from hpcmpm.scene import Scene
 
 BIN = Path(sys.executable).parent
 SCENE = """
@@ -51,8 +48,6 @@ velocity = [150.0, 0.0]
 """
 
 
-@pytest.mark.skipif("periodic" not in Scene.__dataclass_fields__,
-                    reason="periodic axes are not on this tree yet (the parallel branch)")
 def test_pd_strip_across_a_periodic_axis(tmp_path):
     scene = tmp_path / "strip.toml"
     scene.write_text(SCENE)
