@@ -18,6 +18,7 @@ from .j2 import J2Plasticity
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
 from .oldroyd_b import OldroydB
+from .peridynamic import Peridynamic
 from .shock import ShockModel
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
@@ -28,7 +29,7 @@ MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
                 WeaklyCompressible, OldroydB, HerschelBulkley, VonMises, ShockModel,
-                J2Plasticity)
+                J2Plasticity, Peridynamic)
 }
 
 
@@ -60,4 +61,4 @@ def make_material(spec, dim: int) -> Material:
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
            "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
            "StableNeoHookean", "Snow", "WeaklyCompressible", "OldroydB", "HerschelBulkley",
-           "VonMises", "ShockModel", "J2Plasticity"]
+           "VonMises", "ShockModel", "J2Plasticity", "Peridynamic"]
