@@ -12,15 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
 
 BIN = Path(sys.executable).parent
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
+# scene, dt, steps, overrides: small enough for CI (each mpiexec launch costs seconds).
 CASES = {
-    "sponge": ("inputs/sponge_twist_ob_3d.toml", 0.01, 12, ["simulation.dx=0.05"]),
-    "bingham": ("inputs/channel_bingham_2d.toml", 0.01, 40, ["simulation.dx=0.03125"]),
+    "sponge": ("inputs/sponge_twist_ob_3d.toml", 0.01, 8, ["simulation.dx=0.05"]),
+    "bingham": ("inputs/channel_bingham_2d.toml", 0.01, 24, ["simulation.dx=0.03125"]),
 }
+FIELDS = ("x", "v", "b", "J")
 
 
 def hpcmpm(ranks, *args):
@@ -29,47 +30,56 @@ def hpcmpm(ranks, *args):
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 
-def run(case, ranks, out, steps=None, checkpoint_every=None, every=None):
-    scene, dt, full, extra = CASES[case]
-    steps = steps or full
+def final_frame(out):
+    return read_frame(sorted(out.glob("frame_*.h5"))[-1])
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
+def runs(request, tmp_path_factory):
+    """Each case on 1, 2 and 4 ranks; frames and a checkpoint at half way (for the restart)."""
+    scene, dt, steps, extra = CASES[request.param]
     end = steps * dt
-    every = every or end
-    sets = [f"simulation.dt={dt}", f"simulation.end_time={end}", f"output.every={every}",
-            "solver.tolerance=1e-12", 'output.fields=["b", "J"]', *extra]
-    args = ["run", scene, "--out", str(out), "--quiet", "--force"]
-    if checkpoint_every:
-        args += ["--checkpoint-every", str(checkpoint_every)]
-    for s in sets:
-        args += ["--set", s]
-    hpcmpm(ranks, *args)
-    data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
-    assert attrs["step"] == steps
-    return data, attrs
+    out = {}
+    for ranks in (1, 2, 4):
+        folder = tmp_path_factory.mktemp(f"{request.param}{ranks}")
+        args = ["run", scene, "--out", str(folder), "--quiet", "--force",
+                "--checkpoint-every", str(steps // 2)]
+        for s in [f"simulation.dt={dt}", f"simulation.end_time={end}",
+                  f"output.every={end / 2}", "solver.tolerance=1e-12",
+                  'output.fields=["b", "J"]', *extra]:
+            args += ["--set", s]
+        hpcmpm(ranks, *args)
+        data, attrs = final_frame(folder)
+        assert attrs["step"] == steps
+        out[ranks] = (folder, data, attrs)
+    return request.param, steps, dt, out
 
 
-@pytest.mark.parametrize("case", sorted(CASES))
-def test_one_two_four_ranks_agree(tmp_path, case):
-    ref, attrs = run(case, 1, tmp_path / "n1")
+def test_one_two_four_ranks_agree(runs):
+    case, _, _, out = runs
+    _, ref, attrs = out[1]
     assert attrs["cg_iterations_mean"] > 1  # the solve did work
     for ranks in (2, 4):
-        got, _ = run(case, ranks, tmp_path / f"n{ranks}")
+        got = out[ranks][1]
         assert np.array_equal(got["id"], ref["id"])
-        for name in ("x", "v", "b", "J"):
+        for name in FIELDS:
             err = np.abs(got[name] - ref[name]).max() / np.abs(ref[name]).max()
             # Ghost sums in another order change the inputs of each solve by round-off; at CG
             # tolerance 1e-12 the solutions then differ by about cond * 1e-16 per step.
             assert err < 1e-10, f"{case} {ranks} ranks: {name} differs by {err:.2e}"
 
 
-def test_restart_is_bitwise_on_the_same_rank_count(tmp_path):
-    """Checkpoint at step 6, restart to step 12 on 2 ranks: the same bits as the run
-    without a break (the integrator carries no state between steps). Both runs write frames
-    every 6 steps, so both land on t = 0.06 with the same clipped dt."""
-    full, _ = run("sponge", 2, tmp_path / "full", every=0.06)
-    run("sponge", 2, tmp_path / "part", steps=6, checkpoint_every=6, every=0.06)
-    ckpt = latest_checkpoint(tmp_path / "part")
-    hpcmpm(2, "restart", str(ckpt), "--end-time", str(12 * 0.01), "--quiet")
-    got, attrs = read_frame(sorted((tmp_path / "part").glob("frame_*.h5"))[-1])
-    assert attrs["step"] == 12
-    for name in ("x", "v", "b", "J"):
+def test_restart_is_bitwise_on_the_same_rank_count(runs, tmp_path):
+    """Restart the 2-rank run from its half-way checkpoint: the same bits at the end as the
+    run without a break (the integrator carries no state between steps; both land on the
+    half-way frame time with the same clipped dt)."""
+    case, steps, dt, out = runs
+    folder, full, _ = out[2]
+    ckpts = sorted(folder.glob("ckpt_*.h5"))
+    half = [c for c in ckpts if c.name == f"ckpt_{steps // 2:09d}.h5"]
+    assert half, [c.name for c in ckpts]
+    hpcmpm(2, "restart", str(half[0]), "--out", str(tmp_path / "again"), "--quiet")
+    got, attrs = final_frame(tmp_path / "again")
+    assert attrs["step"] == steps
+    for name in FIELDS:
         assert np.array_equal(got[name], full[name]), name
