@@ -150,8 +150,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except HpcmpmError as exc:
-        for line in str(exc).splitlines() or [type(exc).__name__]:
-            print(f"hpcmpm: error: {line}", file=sys.stderr)
+        # Every HpcmpmError is raised on all ranks alike (errors.py): rank 0 tells the user,
+        # once per job, and every rank exits with its code.
+        if _rank() == 0:
+            label = getattr(exc, "label", "error")
+            for line in str(exc).splitlines() or [type(exc).__name__]:
+                print(f"hpcmpm: {label}: {line}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("hpcmpm: interrupted", file=sys.stderr)

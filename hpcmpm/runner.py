@@ -8,6 +8,7 @@ collective first, so no rank is left waiting in a collective the others skipped.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import time
@@ -27,9 +28,10 @@ log = logging.getLogger(__name__)
 
 class CheckpointedOnSignal(HpcmpmError):
     """The run received SIGTERM/SIGUSR1, wrote a checkpoint and stopped (resume with
-    `hpcmpm restart`)."""
+    `hpcmpm restart`): an expected event of a batch job, not an error."""
 
     exit_code = EXIT_CHECKPOINTED_ON_SIGNAL
+    label = "stopped"
 
 
 @dataclass
@@ -55,7 +57,7 @@ def parse_wall_time(text: str | None) -> float | None:
     seconds = 0.0
     for part in parts:
         seconds = seconds * 60.0 + part
-    if seconds <= 0 or len(parts) > 3:
+    if not math.isfinite(seconds) or seconds <= 0 or len(parts) > 3:
         raise SceneError(f"--checkpoint-wall: expected a positive HH:MM:SS, got {text!r}")
     return seconds
 
@@ -135,10 +137,11 @@ class Runner:
                 if self.domain.any(flag.raised is not None):
                     self.write_checkpoint()
                     progress.close()
+                    raised = [s for s in self.domain.allgather(flag.raised) if s is not None]
                     raise CheckpointedOnSignal(
-                        f"signal received: checkpoint written at step {sim.step_index}, "
-                        f"t={sim.time:.6g} in {opts.out_dir}; continue with "
-                        f"`hpcmpm restart {self.latest_checkpoint_path}`")
+                        f"{signal.Signals(raised[0]).name} received: checkpoint written at "
+                        f"step {sim.step_index}, t={sim.time:.6g} in {opts.out_dir}; continue "
+                        f"with `hpcmpm restart {self.latest_checkpoint_path}`")
                 target = self.frame_time(self.frame_index)
                 dt = self.choose_dt()
                 clipped = sim.time + dt >= target * (1 - 1e-12)
@@ -234,22 +237,67 @@ def load_scene_on_root(comm: Communicator, path: str, overrides) -> object:
     return scene
 
 
+def check_options(args) -> None:
+    """The command-line values of ``run``/``restart`` through the scene's own checks (one line
+    each, `SceneError`, exit 2): ``--end-time`` as ``simulation.end_time``, ``--checkpoint-every``
+    as ``output.checkpoint_every``, ``--checkpoint-wall`` a positive wall time, ``--out`` a
+    folder. Deterministic, so every rank raises the same error without a collective."""
+    from .scene import CommandLineChecker
+
+    c = CommandLineChecker()
+    c.option("--end-time", getattr(args, "end_time", None), low=0.0)
+    c.option("--checkpoint-every", getattr(args, "checkpoint_every", None), low=1,
+             low_open=False, integer=True)
+    try:
+        parse_wall_time(getattr(args, "checkpoint_wall", None))
+    except SceneError as exc:
+        c.problems.extend(exc.problems)
+    out = getattr(args, "out", None)
+    if out is not None:
+        c.problems.extend(output_dir_problems(Path(out)))
+    c.raise_problems()
+
+
+def output_dir_problems(out_dir: Path) -> list[str]:
+    """Why ``out_dir`` cannot be an output folder (a file, or under a file), or nothing."""
+    for path in (out_dir, *out_dir.parents):
+        if path.exists() and not path.is_dir():
+            what = "is" if path == out_dir else f"lies under {path}, which is"
+            return [f"--out: {out_dir} {what} a file, not a folder"]
+        if path.exists():
+            break
+    return []
+
+
+def make_output_dir(comm: Communicator, out_dir: Path) -> None:
+    """Rank 0 creates ``out_dir``; a failure is the same `SceneError` on every rank."""
+    problem = None
+    if comm.rank == 0:
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            problem = f"--out: cannot create {out_dir}: {exc.strerror or exc}"
+    problem = comm.bcast(problem)
+    if problem:
+        raise SceneError(problem)
+
+
 def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
     """A run never overwrites another run's output without ``--force``."""
     problem = None
     if comm.rank == 0:
         existing = [p for p in out_dir.glob("*") if p.suffix in (".h5", ".xdmf", ".tmp")] \
-            if out_dir.exists() else []
+            if out_dir.is_dir() else []
         if existing and not force:
             problem = (f"{out_dir} already holds output of another run ({len(existing)} files); "
                        f"choose another --out or pass --force to replace it")
         elif existing:
             for p in existing:
                 p.unlink()
-        out_dir.mkdir(parents=True, exist_ok=True)
     problem = comm.bcast(problem)
     if problem:
         raise OutputExistsError(problem)
+    make_output_dir(comm, out_dir)
 
 
 def make_domain(scene, comm: Communicator | None = None) -> Domain:
@@ -310,6 +358,7 @@ def simulate(scene, end_time: float | None = None, observer=None, comm=None) -> 
 
 
 def run_command(args) -> int:
+    check_options(args)
     comm = Communicator()
     scene = load_scene_on_root(comm, args.scene, getattr(args, "set", None) or [])
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.scene).stem
@@ -319,7 +368,8 @@ def run_command(args) -> int:
     sim = Simulation(scene, domain)
     initial_particles(sim)
     options = RunOptions(
-        out_dir=out_dir, end_time=float(args.end_time or scene.end_time),
+        out_dir=out_dir,
+        end_time=float(scene.end_time if args.end_time is None else args.end_time),
         quiet=bool(args.quiet), checkpoint_every=args.checkpoint_every or
         scene.output.checkpoint_every, checkpoint_wall=parse_wall_time(args.checkpoint_wall),
         checkpoint_keep=scene.output.checkpoint_keep,
@@ -372,13 +422,16 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
 
 
 def restart_command(args) -> int:
+    check_options(args)
     comm = Communicator()
     ckpt = Path(args.checkpoint)
     sim, meta, end_time = restore_simulation(str(ckpt), comm, args.end_time)
+    if sim.time >= end_time * (1 - 1e-12):
+        return nothing_to_run(comm, ckpt, sim.time, end_time, args.end_time is not None)
     sim.domain.install_abort_hook()
     out_dir = Path(args.out) if args.out else ckpt.parent
-    if args.out and comm.rank == 0:
-        out_dir.mkdir(parents=True, exist_ok=True)
+    if args.out:
+        make_output_dir(comm, out_dir)
     chain = list(meta.get("restart_chain", [])) + [str(ckpt.resolve())]
     options = RunOptions(out_dir=out_dir, end_time=end_time, quiet=bool(args.quiet),
                          checkpoint_keep=sim.scene.output.checkpoint_keep,
@@ -388,3 +441,17 @@ def restart_command(args) -> int:
                          restart_chain=chain)
     runner_frames = int(meta["frame_index"])
     return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True)
+
+
+def nothing_to_run(comm: Communicator, ckpt: Path, time_now: float, end_time: float,
+                   given: bool) -> int:
+    """A restart whose checkpoint is at or past the end time runs no step and writes nothing:
+    an explicit ``--end-time`` that is not later is an argument error (exit 2); a checkpoint at
+    its run's own end says so and exits 0."""
+    if given:
+        raise SceneError(f"--end-time: must be later than the checkpoint's time t={time_now:.9g}"
+                         f" ({ckpt.name}), got {end_time:g}")
+    if comm.rank == 0:
+        print(f"hpcmpm: nothing to run: {ckpt} is at t={time_now:.9g}, the end time of its run; "
+              f"nothing was computed or written (continue further with --end-time T)")
+    return 0

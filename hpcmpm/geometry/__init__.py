@@ -7,6 +7,9 @@ tile without gaps or overlaps; each carries the volume ``(dx / ppc)^dim``.
 
 from __future__ import annotations
 
+import math
+import os
+
 import numpy as np
 
 from ..errors import SceneError
@@ -54,7 +57,8 @@ def sample_body(body, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     if body.jitter > 0 and len(x):
         rng = np.random.default_rng(body.seed)
         x = x + rng.uniform(-0.5, 0.5, size=x.shape) * body.jitter * spacing
-    return np.ascontiguousarray(x), np.full(len(x), spacing ** dim)
+    # float64, not Python float: an absurd spacing gives inf (reported) instead of OverflowError
+    return np.ascontiguousarray(x), np.full(len(x), np.float64(spacing) ** dim)
 
 
 def initial_velocity(body, x: np.ndarray, dim: int) -> np.ndarray:
@@ -75,9 +79,56 @@ def initial_velocity(body, x: np.ndarray, dim: int) -> np.ndarray:
     return v
 
 
+def sampling_memory_limit() -> int:
+    """Bytes the sampling of a scene may take: the memory this machine has available now
+    (``MemAvailable``), else its physical memory."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def lattice_points(scene: Scene) -> list[float]:
+    """Points of each body's bounding-box lattice (what `lattice` allocates before the shape
+    test), as floats: an estimate that cannot overflow, computed before anything is allocated."""
+    spacing = scene.dx / scene.particles_per_cell
+    counts = []
+    for body in scene.bodies:
+        lower, upper = body_bounds(body.shape, body.params, scene.dim)
+        n = 1.0
+        for lo, hi in zip(lower, upper):
+            n *= max((hi - lo) / spacing, 1.0) if spacing > 0 else math.inf
+        counts.append(n)
+    return counts
+
+
+def check_sample_size(scene: Scene) -> None:
+    """Raise `SceneError` when sampling ``scene`` would need more memory than this machine has,
+    before anything is allocated (a typo such as ``particles_per_cell = 2000`` must get a
+    verdict, not a MemoryError or an exhausted machine)."""
+    # Bytes per lattice point while sampling: the meshgrid axes and their stack (2 dim
+    # float64), the kept positions and velocities (2 dim), mass, volume, id, mask and group.
+    per_point = 8 * (4 * scene.dim + 5)
+    counts = lattice_points(scene)
+    total = math.fsum(counts) if all(math.isfinite(n) for n in counts) else math.inf
+    limit = sampling_memory_limit()
+    if total * per_point > limit:
+        raise SceneError(
+            f"{scene.path}: simulation.particles_per_cell: sampling the bodies would take about "
+            f"{total:.3g} particles ({total * per_point / 2**30:.3g} GiB), more than the "
+            f"{limit / 2**30:.3g} GiB of memory available here; use a larger simulation.dx "
+            f"or fewer particles_per_cell (now dx = {scene.dx:g}, particles_per_cell = "
+            f"{scene.particles_per_cell})")
+
+
 def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
     """Every body's particles: x, v, mass, vol0, group (material index), id (0..N-1 in body
     order; deterministic, so every rank computes the same ids)."""
+    check_sample_size(scene)
     parts = []
     for index, body in enumerate(scene.bodies):
         x, vol = sample_body(body, scene)
@@ -87,7 +138,14 @@ def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
                              f"{scene.dx / scene.particles_per_cell:g}?)")
         group = scene.material_index(body.material)
         density = scene.materials[group].density
-        parts.append({"x": x, "v": initial_velocity(body, x, scene.dim), "mass": density * vol,
+        with np.errstate(all="ignore"):  # non-finite values are reported just below
+            v = initial_velocity(body, x, scene.dim)
+            mass = density * vol
+        if not (np.isfinite(v).all() and np.isfinite(mass).all() and (mass > 0).all()):
+            raise SceneError(f"{scene.path}: bodies[{index}]: initial velocity or mass is not "
+                             f"finite (velocity, angular_velocity, velocity_field or density "
+                             f"out of range)")
+        parts.append({"x": x, "v": v, "mass": mass,
                       "vol0": vol, "group": np.full(len(x), group, dtype=np.int32)})
     out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     out["id"] = np.arange(len(out.get("x", ())), dtype=np.int64)

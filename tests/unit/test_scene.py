@@ -162,10 +162,12 @@ def test_set_overrides_values_tables_and_list_items():
 
 def test_bad_overrides_are_reported_like_file_problems():
     lines = problems(GOOD, ["simulation.cfl=abc", "materials.3.E=1", "nonsense",
-                            "simulation.cfll=0.3"])
+                            "simulation.cfll=0.3", "materials.steel.E=1"])
     assert lines == [
-        "scene.toml: --set materials.3.E: no such key",
+        "scene.toml: --set materials.3.E: no entry 3 (materials has 1)",
         "scene.toml: --set nonsense: expected key.path=value",
+        "scene.toml: --set materials.steel.E: no entry named 'steel' in materials (names: "
+        "rubber; or give an index)",
         "scene.toml: simulation.cfll: unknown key (did you mean 'cfl'?)",
         "scene.toml: simulation.cfl: must be a number, got string 'abc'",
     ]
@@ -250,3 +252,22 @@ def test_the_documented_example_is_a_valid_scene():
     scene = parse_scene(example, "docs/scene-format.md")
     assert len(scene.bodies) == 2 and scene.colliders[0].end == 1.0
     assert scene.walls.faces[0] == WallFace("separate", 0.3)
+
+
+def test_set_picks_array_entries_by_name_or_default_name():
+    text = GOOD + """
+[[colliders]]
+shape = "half_space"
+point = [0.0, 0.1]
+normal = [0.0, 1.0]
+"""
+    scene = parse_scene(text, "scene.toml", ["materials.rubber.E=2000.0",
+                                             "bodies.upper_right.velocity=[0.0, -0.2]",
+                                             "colliders.collider0.friction=0.5"])
+    assert scene.materials[0].params["E"] == 2000.0
+    assert scene.bodies[1].name == "upper_right" and scene.bodies[1].velocity == (0.0, -0.2)
+    assert scene.bodies[0].velocity == (0.1, 0.1)  # only the named body changed
+    assert scene.colliders[0].friction == 0.5
+    # By name and by index reach the same entry.
+    assert parse_scene(GOOD, "s", ["bodies.lower_left.radius=0.1"]) == \
+        parse_scene(GOOD, "s", ["bodies.0.radius=0.1"])
