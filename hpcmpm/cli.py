@@ -17,13 +17,9 @@ from .errors import HpcmpmError
 
 def _rank() -> int:
     # The launcher's environment says which rank this is, so the CLI needs no MPI import.
-    for var in ("PMI_RANK", "OMPI_COMM_WORLD_RANK", "PMIX_RANK", "SLURM_PROCID"):
-        if var in os.environ:
-            try:
-                return int(os.environ[var])
-            except ValueError:
-                pass
-    return 0
+    from .launcher import launcher_rank
+
+    return launcher_rank()
 
 
 def configure_logging(quiet: bool = False) -> None:
@@ -46,20 +42,26 @@ def _validate(args) -> int:
 
 def _run(args) -> int:
     from . import numba_cache
+    from .signals import SignalFlag
 
-    numba_cache.configure()  # before the runner imports numba
-    from .runner import run_command
+    # From the first moment: a scheduler's warning during imports or compilation is kept for
+    # the run loop (which checkpoints on it) instead of killing the process.
+    with SignalFlag() as flag:
+        numba_cache.configure()  # before the runner imports numba
+        from .runner import run_command
 
-    return run_command(args)
+        return run_command(args, flag)
 
 
 def _restart(args) -> int:
     from . import numba_cache
+    from .signals import SignalFlag
 
-    numba_cache.configure()
-    from .runner import restart_command
+    with SignalFlag() as flag:
+        numba_cache.configure()
+        from .runner import restart_command
 
-    return restart_command(args)
+        return restart_command(args, flag)
 
 
 def _info(args) -> int:
@@ -127,6 +129,10 @@ def build_parser() -> argparse.ArgumentParser:
     job.add_argument("--out", help="run output folder (default runs/<scene name>)")
     job.add_argument("--activate", help="shell line that activates the environment")
     job.add_argument("--output", "-o", help="write the script here instead of stdout")
+    job.add_argument("--mpi", metavar="TYPE", default="pmi2",
+                     help="SLURM: srun's --mpi plugin that gives the MPI library its ranks "
+                          "(default pmi2, for MPICH; pmix for many site Open MPIs; 'default' "
+                          "leaves the cluster's MpiDefault)")
     job.add_argument("extra", nargs="*", help="extra `hpcmpm run` arguments (after --)")
     job.set_defaults(handler=_jobscript)
 

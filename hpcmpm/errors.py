@@ -46,3 +46,10 @@ class OutputExistsError(HpcmpmError):
 # Exit code for a run that stopped on SIGTERM/SIGUSR1 after writing a checkpoint.
 # Job scripts requeue on this code (jobs/*.sh.in).
 EXIT_CHECKPOINTED_ON_SIGNAL = 75
+
+
+class LaunchError(HpcmpmError):
+    """The ranks were started wrongly (e.g. N separate 1-rank runs instead of one N-rank run);
+    raised before anything is written."""
+
+    exit_code = 2

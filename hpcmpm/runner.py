@@ -12,6 +12,7 @@ import math
 import os
 import signal
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,8 +20,9 @@ import numpy as np
 
 from . import __version__
 from .errors import EXIT_CHECKPOINTED_ON_SIGNAL, HpcmpmError, OutputExistsError, SceneError
-from .parallel import Communicator, Domain
+from .parallel import Communicator, Domain, check_launch
 from .progress import Progress
+from .signals import SignalFlag
 from .simulation import Simulation
 
 log = logging.getLogger(__name__)
@@ -62,36 +64,16 @@ def parse_wall_time(text: str | None) -> float | None:
     return seconds
 
 
-class SignalFlag:
-    """Set by SIGTERM/SIGUSR1 (what SLURM sends ahead of the wall time); read at step
-    boundaries only, so a checkpoint is never written from inside a step."""
-
-    SIGNALS = (signal.SIGTERM, signal.SIGUSR1)
-
-    def __init__(self) -> None:
-        self.raised: int | None = None
-        self._previous = {}
-
-    def __enter__(self):
-        for sig in self.SIGNALS:
-            self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame) -> None:
-        self.raised = signum
-
-    def __exit__(self, *exc):
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        return False
-
-
 class Runner:
     """Drives a `Simulation` to ``end_time`` with frames, checkpoints and progress."""
 
     def __init__(self, sim: Simulation, writer, options: RunOptions, frame_index: int = 0,
-                 first_frame_written: bool = False, observer=None):
+                 first_frame_written: bool = False, observer=None,
+                 signal_flag: SignalFlag | None = None):
         self.sim = sim
+        # Installed by the CLI at start-up, so a signal during imports or compilation is kept;
+        # otherwise the run installs its own.
+        self.signal_flag = signal_flag
         self.observer = observer  # called as observer(sim) after every step (tests, studies)
         self.domain = sim.domain
         self.writer = writer
@@ -132,7 +114,7 @@ class Runner:
         if not self.first_frame_written:
             self.write_frame()
             self.first_frame_written = True
-        with SignalFlag() as flag:
+        with nullcontext(self.signal_flag) if self.signal_flag else SignalFlag() as flag:
             while sim.time < opts.end_time * (1 - 1e-12):
                 if self.domain.any(flag.raised is not None):
                     self.write_checkpoint()
@@ -357,9 +339,10 @@ def simulate(scene, end_time: float | None = None, observer=None, comm=None) -> 
     return sim
 
 
-def run_command(args) -> int:
+def run_command(args, signal_flag: SignalFlag | None = None) -> int:
     check_options(args)
     comm = Communicator()
+    check_launch(comm)
     scene = load_scene_on_root(comm, args.scene, getattr(args, "set", None) or [])
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.scene).stem
     prepare_output_dir(comm, out_dir, getattr(args, "force", False))
@@ -375,13 +358,15 @@ def run_command(args) -> int:
         checkpoint_keep=scene.output.checkpoint_keep,
         debug_checks=bool(getattr(args, "debug_checks", False)),
         restart_chain=[str(Path(args.scene).resolve())])
-    return execute(sim, options, comm, frame_index=0, first_frame_written=False)
+    return execute(sim, options, comm, frame_index=0, first_frame_written=False,
+                   signal_flag=signal_flag)
 
 
 def execute(sim: Simulation, options: RunOptions, comm: Communicator, frame_index: int,
-            first_frame_written: bool) -> int:
+            first_frame_written: bool, signal_flag: SignalFlag | None = None) -> int:
     writer = make_writer(sim, options.out_dir, options.restart_chain, frame_index)
-    runner = Runner(sim, writer, options, frame_index, first_frame_written)
+    runner = Runner(sim, writer, options, frame_index, first_frame_written,
+                    signal_flag=signal_flag)
     start, step0 = time.perf_counter(), sim.step_index
     diag = runner.run()
     n = sim.domain.sum(sim.particles.n)
@@ -421,9 +406,10 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     return sim, meta, end_time if end_time is not None else float(meta["end_time"])
 
 
-def restart_command(args) -> int:
+def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
     check_options(args)
     comm = Communicator()
+    check_launch(comm)
     ckpt = Path(args.checkpoint)
     sim, meta, end_time = restore_simulation(str(ckpt), comm, args.end_time)
     if sim.time >= end_time * (1 - 1e-12):
@@ -440,7 +426,8 @@ def restart_command(args) -> int:
                          checkpoint_wall=parse_wall_time(getattr(args, "checkpoint_wall", None)),
                          restart_chain=chain)
     runner_frames = int(meta["frame_index"])
-    return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True)
+    return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True,
+                   signal_flag=signal_flag)
 
 
 def nothing_to_run(comm: Communicator, ckpt: Path, time_now: float, end_time: float,
