@@ -40,7 +40,8 @@ class FrameWriter:
     dim : 2 or 3.
     fields : extra particle fields to write besides the core ones (skipped when the
         ParticleSet has no such field).
-    provenance : ``restart_chain`` (list of paths), optionally ``hpcmpm_version``.
+    provenance : ``restart_chain`` (list of paths: the scene file, then each checkpoint the run
+        was restarted from), optionally ``scene_path`` and ``hpcmpm_version``.
     first_frame : number of the first frame this writer writes (a restart continues the count).
     mode : ``"auto"`` (mpio when h5py has MPI and size > 1), ``"serial"`` or ``"mpio"``;
         ``None`` reads ``$HPCMPM_IO_MODE``.
@@ -83,6 +84,7 @@ class FrameWriter:
             "frame_index": self.frame_index, "n_particles": int(n_total),
             "hpcmpm_version": self.provenance.get("hpcmpm_version", __version__),
             "n_ranks": self.domain.size, "io_mode": self.mode, "scene": self.scene_text,
+            "scene_path": str(self.provenance.get("scene_path", "")),
             "restart_chain": attr_value(list(self.provenance.get("restart_chain", []))),
         }
         for key, value in (extra_attrs or {}).items():

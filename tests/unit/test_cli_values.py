@@ -4,6 +4,9 @@ checkpoint. In-process (`cli.main`), so each case costs milliseconds, not an int
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
+
 import h5py
 import pytest
 
@@ -116,3 +119,26 @@ def test_errors_are_printed_by_rank_0_only(capsys, monkeypatch):
     monkeypatch.setenv("PMI_RANK", "0")
     assert cli.main(["run", BAR, "--end-time", "-1"]) == 2
     assert len(error_lines(capsys)) == 1
+
+
+def test_info_names_the_scene_and_the_provenance_alike_for_frames_and_checkpoints(short_run,
+                                                                                 capsys):
+    scene = Path(BAR).resolve()
+    for name in ("frame_000001.h5", "ckpt_000000014.h5"):
+        assert cli.main(["info", str(short_run / name)]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert "scene:       bar_2d" in lines, lines
+        assert f"provenance:  run of {scene}, not restarted" in lines, lines
+
+
+def test_frame_times_are_the_decimal_times_the_scene_asks_for():
+    from hpcmpm.runner import frame_time
+
+    # 33 * 0.1 is 3.3000000000000003 in binary; the frame is written at 3.3.
+    assert 33 * 0.1 != 3.3 and frame_time(33, 0.1, 10.0) == 3.3
+    assert repr(frame_time(3, 0.1, 10.0)) == "0.3" and frame_time(200, 0.1, 10.0) == 10.0
+    times = [frame_time(k, 0.07, 5.0) for k in range(73)]  # 72 x 0.07 > 5: the end
+    assert times == sorted(set(times)) and times[-1] == 5.0
+    # Never more than an ulp or two from k * every: the schedule is the same.
+    assert all(abs(frame_time(k, 0.07, 1e9) - k * 0.07) <= 2 * math.ulp(k * 0.07)
+               for k in range(1, 10000))
