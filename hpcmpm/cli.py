@@ -93,10 +93,10 @@ DESCRIPTION = ("hpcmpm: an MPI-distributed Material Point Method (MPM) solver wi
                "Runs TOML scenes on any number of ranks (mpiexec -n N hpcmpm run SCENE), writes "
                "HDF5 frames with an XDMF series for ParaView and checkpoints that restart on any "
                "rank count.")
-EPILOG = ("Exit codes: 0 done, 2 invalid scene or arguments, 3 numerical instability, 4 "
-          "unreadable checkpoint, 5 output folder holds another run, 6 not a readable frame or "
-          "checkpoint (info), 75 checkpoint written on SIGTERM/SIGUSR1. Scene format: "
-          "docs/scene-format.md.")
+EPILOG = ("Exit codes: 0 done, 2 invalid scene or arguments, 3 numerical instability, 4 a "
+          "checkpoint or frame that cannot be read or written, 5 output folder holds another "
+          "run, 6 not a readable frame or checkpoint (info), 75 checkpoint written on "
+          "SIGTERM/SIGUSR1. Scene format: docs/scene-format.md.")
 CHECKPOINT_EVERY_HELP = "also write a checkpoint every N steps (default: output.checkpoint_every)"
 CHECKPOINT_WALL_HELP = "also write a checkpoint every HH:MM:SS (or seconds) of wall time"
 QUIET_HELP = "no progress bar (warnings and errors are still printed)"

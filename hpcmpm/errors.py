@@ -37,6 +37,12 @@ class CheckpointError(HpcmpmError):
     exit_code = 4
 
 
+class FrameError(HpcmpmError):
+    """A frame cannot be written (raised on every rank: no rank is left in a collective)."""
+
+    exit_code = 4
+
+
 class OutputExistsError(HpcmpmError):
     """An output folder already holds another run's output."""
 

@@ -139,7 +139,7 @@ def write_checkpoint(path_dir, domain, particles, meta: dict, keep: int = 2,
         else:
             def sink(first: int, piece: dict[str, np.ndarray]) -> None:
                 for name, arr in piece.items():
-                    dsets[name][first:first + len(arr)] = arr
+                    out.write_rows(dsets[name], first, arr)
 
             send_rows_in_turn(domain, rows, chunk_bytes, sink)
     except (OSError, ValueError, RuntimeError) as exc:

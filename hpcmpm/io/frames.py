@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..errors import FrameError
 from .shared import DEFAULT_CHUNK_BYTES, SharedFile, attr_value, gather_by_id, resolve_mode
 from .xdmf import FrameCatalog
 
@@ -102,7 +103,10 @@ class FrameWriter:
         except BaseException:
             out.abandon()
             raise
-        out.commit()
+        try:
+            out.commit()  # a write failure on any rank is raised here on every rank
+        except OSError as exc:
+            raise FrameError(f"frame {path.name} not written: {exc}") from None
         if self.catalog is not None:
             shapes = {name: ((n_total,) + arr.shape[1:], arr.dtype.str)
                       for name, arr in {"id": ids, **rows}.items()}
@@ -144,7 +148,7 @@ class FrameWriter:
             # collective write that the other ranks join with an empty selection.
             if out.mode == "serial":
                 for name, arr in piece.items() if piece is not None else ():
-                    dsets[name][first_row:first_row + len(arr)] = arr
+                    out.write_rows(dsets[name], first_row, arr)
                 return
             piece = empty if piece is None else piece
             count = len(piece["id"])
