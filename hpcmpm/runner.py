@@ -173,7 +173,7 @@ class Runner:
         spec = self.sim.scene.parallel
         if self.domain.size > 1 and self.sim.step_index % spec.rebalance_every == 0:
             if self.domain.rebalance(self.sim.particles, spec.rebalance_threshold):
-                self.sim._needs_sort = True
+                self.sim.request_sort()
 
     # -- output ----------------------------------------------------------------------------
     def write_frame(self) -> None:

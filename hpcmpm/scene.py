@@ -40,6 +40,18 @@ class ParallelSpec:
 
 
 @dataclass(frozen=True)
+class SolverSpec:
+    """The semi-implicit solve (000 §3.4, §5.5): one Newton step or Newton to convergence,
+    matrix-free CG with a Jacobi or no preconditioner."""
+
+    mode: str = "linearized"
+    preconditioner: str = "jacobi"
+    tolerance: float = 1e-6
+    max_iterations: int = 1000
+    newton_tolerance: float = 1e-6
+
+
+@dataclass(frozen=True)
 class MaterialSpec:
     name: str
     type: str
@@ -119,6 +131,8 @@ class Scene:
     colliders: tuple[ColliderSpec, ...]
     prescribed: tuple[PrescribedSpec, ...]
     parallel: ParallelSpec
+    integrator: str = "explicit"
+    solver: SolverSpec = SolverSpec()
 
     def material_index(self, name: str) -> int:
         return [m.name for m in self.materials].index(name)
@@ -338,7 +352,9 @@ def _entry_index(entries: list, part: str, section: str) -> tuple[int, str | Non
 
 # -- sections ---------------------------------------------------------------------------------
 SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "transfer",
-                   "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity")
+                   "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity", "integrator")
+SOLVER_MODES = ("linearized", "newton")
+PRECONDITIONERS = ("jacobi", "none")
 
 
 # Cell indices come from x / dx in float64: beyond 2**53 cells along an axis neighbouring
@@ -354,7 +370,7 @@ def _simulation(c: Checker, raw: dict) -> dict:
         return {"dim": None, "domain_lo": None, "domain_hi": None, "dx": None,
                 "particles_per_cell": None, "kernel": None, "transfer": None,
                 "flip_alpha": None, "cfl": None, "dt": None, "max_dt": None,
-                "end_time": None, "gravity": None}
+                "end_time": None, "gravity": None, "integrator": None}
     c.keys(sim, "simulation", SIMULATION_KEYS)
     p = "simulation"
     out: dict[str, Any] = {}
@@ -390,6 +406,9 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out["max_dt"] = c.number(sim, "max_dt", p, None, low=0.0)
     out["end_time"] = c.number(sim, "end_time", p, low=0.0)
     out["gravity"] = c.vector(sim, "gravity", p, dim, (0.0,) * dim) if dim else None
+    from .solvers import INTEGRATORS
+
+    out["integrator"] = c.string(sim, "integrator", p, "explicit", tuple(INTEGRATORS))
     if out["dx"] and lo and hi:
         cells = [(h - l) / out["dx"] for l, h in zip(lo, hi)]
         extents = [h - l for l, h in zip(lo, hi)]
@@ -423,20 +442,24 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
 
 
 def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
-                         transfer, prescribed) -> None:
+                         transfer, prescribed, integrator) -> None:
     """Each requested field must exist in this scene's particles (the writer would skip it
     silently otherwise): a core field, a field of one of its materials, ``C`` for APIC/MLS,
     ``prescribed`` when there are prescribed sets."""
     from .materials import MATERIALS
     from .state import CORE_FIELDS
 
-    if transfer is None or not materials_complete:
+    from .simulation import deformation_fields, deformation_mode
+    from .solvers import INTEGRATORS
+
+    if transfer is None or integrator is None or not materials_complete:
         return  # a bad material or transfer is reported already; the list would mislead
     valid = list(CORE_FIELDS)
-    # F, or J when every material is volumetric; tau, the Kirchhoff stress, is computed for
-    # output.
-    volumetric = all(getattr(MATERIALS[m.type], "volumetric", False) for m in materials)
-    valid += ["J" if materials and volumetric else "F", "tau"]
+    # The deformation state (F, J, or L with F and/or J); tau, the Kirchhoff stress, is
+    # computed for output.
+    classes = [MATERIALS[m.type] for m in materials]
+    mode = deformation_mode(classes, INTEGRATORS[integrator].needs_velocity_gradient)
+    valid += list(deformation_fields(classes, mode)) + ["tau"]
     for m in materials:
         valid += [f for f in MATERIALS[m.type].fields if f not in valid]
     if transfer in ("apic", "mls"):
@@ -460,6 +483,24 @@ def _parallel(c: Checker, raw: dict) -> ParallelSpec:
                                  integer=True) or 20)
 
 
+def _solver(c: Checker, raw: dict) -> SolverSpec:
+    t = c.table(raw, "solver", "")
+    c.keys(t, "solver", ("mode", "preconditioner", "tolerance", "max_iterations",
+                         "newton_tolerance"))
+    d = SolverSpec()
+    values = dict(
+        mode=c.string(t, "mode", "solver", d.mode, SOLVER_MODES),
+        preconditioner=c.string(t, "preconditioner", "solver", d.preconditioner,
+                                PRECONDITIONERS),
+        tolerance=c.number(t, "tolerance", "solver", d.tolerance, low=0.0, high=1.0,
+                           high_open=True),
+        max_iterations=c.number(t, "max_iterations", "solver", d.max_iterations, low=1,
+                                low_open=False, integer=True),
+        newton_tolerance=c.number(t, "newton_tolerance", "solver", d.newton_tolerance,
+                                  low=0.0, high=1.0, high_open=True))
+    return SolverSpec(**{k: getattr(d, k) if v is None else v for k, v in values.items()})
+
+
 def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
     from .materials import MATERIALS, validate_params
 
@@ -477,20 +518,16 @@ def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
             c.problem(f"{p}.name", f"duplicate material name {name!r}")
         names.add(name)
         params = {k: v for k, v in m.items() if k not in ("name", "type", "density")}
-        mistyped = set()
-        for key, value in params.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                c.problem(f"{p}.{key}", f"must be a number, got {_describe(value)}")
-                mistyped.add(key)
-        if mtype is not None:
-            # validate_params says "key: what is wrong"; the key joins the TOML path.
-            for problem in validate_params(mtype, params):
-                key, _, what = problem.partition(": ")
-                if key not in mistyped:
-                    c.problem(f"{p}.{key}", what)
-        if None not in (name, mtype, density) and not mistyped:
-            out.append(MaterialSpec(name, mtype, density,
-                                    {k: float(v) for k, v in params.items()}))
+        problems = validate_params(mtype, params) if mtype is not None else []
+        for problem in problems:
+            # validate_params says "key: what is wrong" (the schema checks each value's
+            # kind: number, choice, table); the key joins the TOML path.
+            key, _, what = problem.partition(": ")
+            c.problem(f"{p}.{key}", what)
+        if None not in (name, mtype, density) and not problems:
+            out.append(MaterialSpec(name, mtype, density, {
+                k: float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v
+                for k, v in params.items()}))
     return tuple(out)
 
 
@@ -713,8 +750,8 @@ def _prescribed(c: Checker, raw: dict, dim) -> tuple:
     return tuple(out)
 
 
-TOP_KEYS = ("simulation", "output", "parallel", "materials", "bodies", "walls", "colliders",
-            "prescribed")
+TOP_KEYS = ("simulation", "output", "parallel", "solver", "materials", "bodies", "walls",
+            "colliders", "prescribed")
 
 
 def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = (),
@@ -733,6 +770,7 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     dim = sim["dim"]
     output = _output(c, raw, sim["end_time"])
     parallel = _parallel(c, raw)
+    solver = _solver(c, raw)
     materials = _materials(c, raw)
     bodies = _bodies(c, raw, dim, materials, sim["domain_lo"], sim["domain_hi"], base_dir)
     walls = _walls(c, raw, dim)
@@ -741,13 +779,13 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     entries = raw.get("materials")
     _check_output_fields(c, output, materials,
                          isinstance(entries, list) and len(entries) == len(materials),
-                         sim["transfer"], prescribed)
+                         sim["transfer"], prescribed, sim["integrator"])
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)
     return Scene(path=file, text=tomli_w.dumps(raw), output=output, materials=materials,
                  bodies=bodies, walls=walls, colliders=colliders, prescribed=prescribed,
-                 parallel=parallel, **sim)
+                 parallel=parallel, solver=solver, **sim)
 
 
 def _resolve_mesh_paths(raw: dict, bodies) -> None:

@@ -1,8 +1,9 @@
-"""The explicit MPM time step on a rank-local grid block.
+"""Particles, grid block, materials and boundaries of one rank, and the phases of a step.
 
-`Simulation.step` reads as the list of phases; each phase is a numba kernel over plain arrays,
-and the only inter-rank traffic is the `Domain` verbs between them. The run loop (time-step
-choice, output, checkpoints) lives in `hpcmpm.runner`.
+`Simulation.step` hands the step to the scene's integrator (`hpcmpm.solvers`), which calls the
+phases below in order: each phase is a numba kernel over plain arrays, and the only inter-rank
+traffic is the `Domain` verbs between them. The run loop (time-step choice, output,
+checkpoints) lives in `hpcmpm.runner`.
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ from .kernels.grid import update_velocity
 from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
 from .kernels.shape import ORDERS, inverse_inertia_factor
-from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCHEMES, static
-from .materials import make_material
+from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCATTER_FORCES, SCHEMES, static
+from .materials import Material, make_material
+from .solvers import make_integrator
 from .state import (DEFORMATION_FIELDS, SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock,
                     ParticleSet)
 
@@ -28,13 +30,25 @@ log = logging.getLogger(__name__)
 MAX_REPORTED = 8
 
 
-def _no_sync() -> None:
-    pass
+def deformation_mode(materials, needs_velocity_gradient: bool = False) -> str:
+    """What G2P does with the velocity gradient (`hpcmpm.kernels.deformation`): ``"L"``
+    (store it) when a material or the integrator needs it, ``"J"`` when every material's
+    stress needs det F only, else ``"F"``."""
+    if needs_velocity_gradient or any(m.deformation == "L" for m in materials):
+        return "L"
+    return "J" if materials and all(m.deformation == "J" for m in materials) else "F"
 
 
-def deformation_field(materials) -> str:
-    """``"J"`` when every material is volumetric (its stress needs det F only), else ``"F"``."""
-    return "J" if materials and all(m.volumetric for m in materials) else "F"
+def deformation_fields(materials, mode: str) -> dict[str, FieldSpec]:
+    """The deformation state the particles carry in ``mode``: F or J, or in mode L the
+    velocity gradient plus the F and J that materials of the other kinds advance from it."""
+    if mode != "L":
+        return {mode: DEFORMATION_FIELDS[mode]}
+    specs = {"L": FieldSpec(TENSOR)}
+    for kind in ("F", "J"):
+        if any(m.deformation == kind for m in materials):
+            specs[kind] = DEFORMATION_FIELDS[kind]
+    return specs
 
 
 class Simulation:
@@ -70,8 +84,12 @@ class Simulation:
         self.gravity = np.zeros(3)
         self.gravity[: self.dim] = scene.gravity
         self.materials = [make_material(spec, self.dim) for spec in scene.materials]
-        # F, or J alone when no material needs more (8 B a particle instead of 8 d^2).
-        self.deformation = deformation_field(self.materials)
+        for material in self.materials:
+            material.configure(scene)
+        self.integrator = make_integrator(getattr(scene, "integrator", "explicit"), self)
+        # F, J alone, or the velocity gradient L (`deformation_mode`).
+        self.deformation = deformation_mode(self.materials,
+                                            self.integrator.needs_velocity_gradient)
         self.boundaries = build_boundaries(scene)
         self.prescribed = build_prescribed(scene)
         self.particles = particles if particles is not None else ParticleSet(
@@ -93,6 +111,19 @@ class Simulation:
         self._counts = np.empty(0, dtype=np.int64)
         self._needs_sort = True
         self.group_slices: list[tuple[int, int]] = []
+        # Materials whose particles the grid carries, and those with a state update to run
+        # after G2P (every on-grid material in mode L): an elastic scene has none.
+        self._on_grid = [g for g, m in enumerate(self.materials) if m.on_grid]
+        self._all_on_grid = len(self._on_grid) == len(self.materials)
+        self._state_groups = [g for g in self._on_grid
+                              if self.deformation == "L" or self.materials[g].updates_state]
+        self._state_dependent_speed = any(
+            type(m).max_wave_speed is not Material.max_wave_speed for m in self.materials)
+        # Step extensions (peridynamics, SPB): objects with optional `particle_forces(sim,
+        # dt)` (the force channel into P2G) and `after_g2p(sim, dt)`; see `add_extension`.
+        self.extensions: list = []
+        self._force_sources: list = []
+        self._after_g2p: list = []
         self.time = 0.0
         self.step_index = 0
         # Optional ``forcing(sim, dt)`` that adds ``dt * b`` to particle velocities before P2G:
@@ -106,7 +137,7 @@ class Simulation:
     # -- set-up ----------------------------------------------------------------------------
     def particle_fields(self) -> dict[str, FieldSpec]:
         """Union of the fields the materials and the chosen features declare."""
-        specs: dict[str, FieldSpec] = {self.deformation: DEFORMATION_FIELDS[self.deformation]}
+        specs = deformation_fields(self.materials, self.deformation)
         for material in self.materials:
             specs.update(material.fields)
         if self.scheme >= APIC:
@@ -115,44 +146,57 @@ class Simulation:
             specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
         return specs
 
+    def add_extension(self, extension) -> None:
+        """Add a step extension: its ``particle_forces(sim, dt)`` (if any) yields
+        ``(start, stop, f)`` with f (stop - start, dim) forces on particle rows [start, stop),
+        scattered into the grid as ``dt sum_p w_ip f_p``; its ``after_g2p(sim, dt)`` (if
+        any) runs after the materials' state update."""
+        self.extensions.append(extension)
+        if hasattr(extension, "particle_forces"):
+            self._force_sources.append(extension)
+        if hasattr(extension, "after_g2p"):
+            self._after_g2p.append(extension)
+
     # -- the step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:
-        """Advance by ``dt``: one explicit MPM step (000 §3.3, Fig. 3.1)."""
-        p, grid, domain, t = self.particles, self.grid, self.domain, self.timers
-        # With sync_phases (benchmarks only) every rank meets before each phase, so a phase
-        # timer holds that phase's own work and the waiting for other ranks is left out.
-        sync = domain.barrier if self.sync_phases else _no_sync
-        sync()
-        with t("sort"):
-            self.sort_if_needed()
-        if self.forcing is not None:
-            self.forcing(self, dt)  # body force as a particle impulse (manufactured solutions)
-        sync()
-        with t("p2g"):
-            grid.fit(*domain.grid_box(p, self.order))
-        # Per chunk: plastic projection and Kirchhoff stress, then P2G of mass, momentum and
-        # dt f_i (000 eq. 3.1; Hu 2018 eq. 17).
-        self.scatter_stress(dt)
-        sync()
-        with t("halo"):
-            domain.sum_ghosts_to_owners(grid, *self._scattered)
-        sync()
-        with t("grid"):
-            self.update_grid(dt)  # v_i = (p_i + dt f_i)/m_i + dt g, then boundaries
-        sync()
-        with t("halo"):
-            domain.fill_ghosts(grid, *self._gathered)
-        sync()
-        with t("g2p"):
-            self.gather(dt)  # v, C, F <- (I + dt grad v) F, x <- x + dt v
-        sync()
-        with t("migrate"):
-            n_before = p.n
-            sent = domain.migrate(p)
-            if sent or p.n != n_before:
-                self._needs_sort = True
+        """Advance by ``dt`` with the scene's integrator (explicit: 000 §3.3, Fig. 3.1)."""
+        self.integrator.step(self, dt)
         self.time += dt
         self.step_index += 1
+
+    def phase(self, name: str):
+        """Timer of one phase. With sync_phases (benchmarks only) every rank meets first, so
+        a phase timer holds that phase's own work and the waiting is left out."""
+        if self.sync_phases:
+            self.domain.barrier()
+        return self.timers(name)
+
+    def sort_phase(self) -> None:
+        with self.phase("sort"):
+            self.sort_if_needed()
+
+    def fit_grid(self) -> None:
+        """Size the grid block to this step's support and zero it."""
+        with self.phase("p2g"):
+            self.grid.fit(*self.domain.grid_box(self.particles, self.order))
+
+    def sum_ghosts(self) -> None:
+        """After P2G: partial sums on other ranks' nodes go to their owners."""
+        with self.phase("halo"):
+            self.domain.sum_ghosts_to_owners(self.grid, *self._scattered)
+
+    def fill_ghosts(self) -> None:
+        """After the grid update: owners send the final velocities to the ghost copies."""
+        with self.phase("halo"):
+            self.domain.fill_ghosts(self.grid, *self._gathered)
+
+    def migrate(self) -> None:
+        with self.phase("migrate"):
+            p = self.particles
+            n_before = p.n
+            sent = self.domain.migrate(p)
+            if sent or p.n != n_before:
+                self._needs_sort = True
 
     def sort_if_needed(self) -> None:
         """Sort particles by (material group, cell) so each material owns one contiguous
@@ -182,6 +226,10 @@ class Simulation:
         saved in checkpoints so a restart sorts exactly when the uninterrupted run would."""
         return self._needs_sort
 
+    def request_sort(self) -> None:
+        """Particles changed rank or group: sort before the next step."""
+        self._needs_sort = True
+
     def restore_order_state(self, needs_sort: bool) -> None:
         """After loading particles in their checkpointed order: resume the sort schedule.
         Without a pending sort the particles are still grouped, so the slices follow from
@@ -209,7 +257,7 @@ class Simulation:
         return {name: p[name][start:stop] for name in p.field_names()}
 
     def scatter_stress(self, dt: float) -> None:
-        """Stress update and P2G, chunk by chunk within each material's slice.
+        """Stress and P2G, chunk by chunk within each on-grid material's slice.
 
         The material kernel writes a chunk's Kirchhoff stress into ``self._tau`` and P2G
         reads it while it is still in cache; no (n, d, d) stress field is kept."""
@@ -218,7 +266,10 @@ class Simulation:
         arrays = {name: p[name] for name in p.field_names()}
         x, v, mass, vol0 = arrays["x"], arrays["v"], arrays["mass"], arrays["vol0"]
         C = arrays.get("C")
-        for g, material in enumerate(self.materials):
+        if self.sync_phases:  # once: ranks run different numbers of chunks
+            self.domain.barrier()
+        for g in self._on_grid:
+            material = self.materials[g]
             first, last = self.group_slices[g]
             for start in range(first, last, self.stress_chunk):
                 stop = min(start + self.stress_chunk, last)
@@ -234,13 +285,31 @@ class Simulation:
                         vol0[start:stop], tau, self._static_scheme, self._static_order,
                         self.dinv_factor, self.dx, self.domain_lo, grid.origin, dt,
                         self._static_split, grid["mass"], grid["momentum"], impulse)
-        with t("p2g"):
-            for clamp in self.prescribed:
-                clamp.scatter(p, grid, self.order)
+        if self.prescribed:
+            with t("p2g"):
+                for clamp in self.prescribed:
+                    clamp.scatter(p, grid, self.order)
+
+    def scatter_forces(self, dt: float) -> None:
+        """The force channel: per-particle forces of the step extensions (peridynamic bond
+        forces of integral-based MPM, 003 eq. 5.2) reach the grid as ``dt sum_p w_ip f_p``."""
+        if not self._force_sources:
+            return
+        grid = self.grid
+        target = grid["impulse"] if self.split_force else grid["momentum"]
+        x = self.particles["x"]
+        for source in self._force_sources:
+            with self.phase("forces"):
+                pieces = list(source.particle_forces(self, dt))
+            with self.phase("p2g_forces"):
+                for start, stop, f in pieces:
+                    SCATTER_FORCES[self.dim](
+                        x[start:stop], np.ascontiguousarray(f, dtype=np.float64),
+                        self._static_order, self.dx, self.domain_lo, grid.origin, dt, target)
 
     def kirchhoff_stress(self) -> np.ndarray:
         """The Kirchhoff stress of every particle (n, d, d), for output. Computed on copies
-        of the material state, so a plastic projection here does not change the run."""
+        of the material state, so nothing done here changes the run."""
         p = self.particles
         self.ensure_grouped()
         tau = np.zeros((p.n, self.dim, self.dim))
@@ -253,45 +322,94 @@ class Simulation:
         return tau
 
     def update_grid(self, dt: float) -> None:
+        """v_i = (p_i + dt f_i)/m_i + dt g, then walls, colliders and prescribed sets."""
+        with self.phase("grid"):
+            grid = self.grid
+            d = self.dim
+            flip = self.scheme == FLIP
+            velocity = grid["velocity"]
+            update_velocity(
+                grid["mass"].reshape(-1), grid["momentum"].reshape(-1, d),
+                (grid["impulse"] if self.split_force else grid["momentum"]).reshape(-1, d),
+                self.split_force, self.gravity[:d], dt, velocity.reshape(-1, d),
+                (grid["velocity_old"] if flip else velocity).reshape(-1, d), flip)
+            self.apply_grid_boundaries(velocity, dt)
+
+    def apply_grid_boundaries(self, velocity: np.ndarray, dt: float) -> None:
+        """Walls and colliders, then prescribed sets (last: a clamp wins over the others),
+        acting in place on a grid velocity field of the block."""
         grid = self.grid
-        d = self.dim
-        flip = self.scheme == FLIP
-        velocity = grid["velocity"]
-        update_velocity(
-            grid["mass"].reshape(-1), grid["momentum"].reshape(-1, d),
-            (grid["impulse"] if self.split_force else grid["momentum"]).reshape(-1, d),
-            self.split_force, self.gravity[:d], dt, velocity.reshape(-1, d),
-            (grid["velocity_old"] if flip else velocity).reshape(-1, d), flip)
         for condition in self.boundaries:
             condition.apply(velocity, grid.origin, self.dx, self.domain_lo, self.time, dt,
                             grid["mass"])
-        for clamp in self.prescribed:  # last: a clamp wins over walls and colliders
+        for clamp in self.prescribed:
             clamp.apply(velocity, grid.origin, self.dx, self.domain_lo, self.time, dt, grid)
 
-    def gather(self, dt: float) -> None:
-        p, grid = self.particles, self.grid
-        old = grid["velocity_old"] if self.scheme == FLIP else self._dummy_vector
-        GATHER[self.dim](
-            p["x"], p["v"], p["C"] if "C" in p else self._dummy_C, p[self.deformation],
-            self._static_scheme, self._static_order, self.dinv_factor, self.dx, self.domain_lo,
-            grid.origin, dt, self.flip_alpha, grid["velocity"], old)
+    def gather(self, dt: float, velocity: str = "velocity") -> None:
+        """G2P from the grid field ``velocity``: v, C, x <- x + dt v, and F or J advanced
+        (or L stored) per `deformation_mode`."""
+        with self.phase("g2p"):
+            p, grid = self.particles, self.grid
+            old = grid["velocity_old"] if self.scheme == FLIP else self._dummy_vector
+            C = p["C"] if "C" in p else None
+            target = p[self.deformation]
+            ranges = [(0, p.n)] if self._all_on_grid else \
+                [self.group_slices[g] for g in self._on_grid]
+            for start, stop in ranges:
+                if stop <= start:
+                    continue
+                deformation = target[start:stop]
+                GATHER[self.dim](
+                    p["x"][start:stop], p["v"][start:stop],
+                    self._dummy_C if C is None else C[start:stop],
+                    (deformation,) if self.deformation == "L" else deformation,
+                    self._static_scheme, self._static_order, self.dinv_factor, self.dx,
+                    self.domain_lo, grid.origin, dt, self.flip_alpha, grid[velocity], old)
+
+    def update_states(self, dt: float) -> None:
+        """After G2P: each material advances its state over ``dt`` (the F or b_E update
+        from L in mode L, the plastic return map), so frames hold the projected state."""
+        if not self._state_groups:
+            return
+        with self.phase("state"):
+            for g in self._state_groups:
+                start, stop = self.group_slices[g]
+                if stop > start:
+                    self.materials[g].update_state(self.material_fields(g), dt)
+
+    def after_g2p(self, dt: float) -> None:
+        for extension in self._after_g2p:
+            extension.after_g2p(self, dt)
 
     # -- time step and health --------------------------------------------------------------
     def max_wave_speed(self) -> float:
-        return max((m.wave_speed() for m in self.materials), default=0.0)
+        """Largest wave speed over the materials, agreed by all ranks: the rest values, or
+        the particles' own where a model's speed depends on its state (a shock EOS)."""
+        if not self._state_dependent_speed:
+            return max((m.wave_speed() for m in self.materials), default=0.0)
+        self.ensure_grouped()
+        local = 0.0
+        for g, m in enumerate(self.materials):
+            start, stop = self.group_slices[g]
+            local = max(local, m.wave_speed() if stop <= start
+                        else m.max_wave_speed(self.material_fields(g)))
+        return self.domain.max(local)
 
     def stable_dt(self) -> float:
-        """CFL time step ``cfl dx / (c_max + |v|_max)`` agreed by all ranks; raises
-        `InstabilityError` on every rank when any particle is broken."""
+        """The integrator's stable time step (explicit: ``cfl dx / (c_max + |v|_max)``),
+        agreed by all ranks; raises `InstabilityError` on every rank when any particle is
+        broken."""
         speed = self.check_health()
-        c = self.max_wave_speed()
-        return self.scene.cfl * self.dx / (c + speed)
+        return self.integrator.stable_dt(self, speed)
 
     def check_health(self) -> float:
         """Global max particle speed; raises `InstabilityError` (same message on every rank)
-        when a particle holds a non-finite value or det F <= 0."""
+        when a particle holds a non-finite value, det F <= 0 or J <= 0."""
         p = self.particles
-        speed, nbad = scan_health(p["x"], p["v"], p[self.deformation], self._bad, MAX_REPORTED)
+        kinds = [k for k in ("F", "J") if k in p] or ["mass"]  # mass > 0: only x, v checked
+        speed, nbad = scan_health(p["x"], p["v"], p[kinds[0]], self._bad, MAX_REPORTED)
+        if nbad == 0 and len(kinds) > 1:
+            speed, nbad = scan_health(p["x"], p["v"], p[kinds[1]], self._bad, MAX_REPORTED)
         total_bad = self.domain.sum(int(nbad))
         if total_bad:
             self.raise_instability(int(nbad), total_bad)
@@ -301,15 +419,18 @@ class Simulation:
         p = self.particles
         idx = self._bad[: min(nbad_local, MAX_REPORTED)]
         mine = [(int(p["id"][i]), self.scene.materials[int(p["group"][i])].name) for i in idx]
-        reports = [r for rank_list in self.domain.allgather(mine) for r in rank_list]
-        reports.sort()
+        messages = [msg for m in self.materials for msg in m.failures]
+        gathered = self.domain.allgather((mine, messages))
+        reports = sorted(r for rank_list, _ in gathered for r in rank_list)
+        details = sorted({msg for _, msgs in gathered for msg in msgs})
         ids = ", ".join(str(i) for i, _ in reports[:MAX_REPORTED])
         names = sorted({name for _, name in reports})
         more = f" (and {total_bad - len(reports[:MAX_REPORTED])} more)" if total_bad > MAX_REPORTED else ""
+        cause = f" ({'; '.join(details[:MAX_REPORTED])})" if details else ""
         raise InstabilityError(
             f"numerical instability at step {self.step_index}, t={self.time:.6g}: "
             f"{total_bad} particle(s) with a non-finite value or det F <= 0, ids {ids}{more}, "
-            f"material {', '.join(repr(n) for n in names)}. "
+            f"material {', '.join(repr(n) for n in names)}{cause}. "
             f"Hint: lower simulation.cfl (now {self.scene.cfl}) or a fixed simulation.dt, "
             f"or refine simulation.dx (now {self.dx}).")
 

@@ -1,18 +1,22 @@
-"""The deformation state a particle carries: the full gradient F, or its determinant J alone.
+"""What G2P does with the step's velocity gradient: advance F, advance J, or store L.
 
 Most materials need F. Volumetric ones (the weakly compressible fluid) need only J = det F, so
 a scene made of them stores J (8 B per particle instead of 32 in 2D, 72 in 3D) and G2P
 advances it with ``J <- det(I + dt grad v) J``, the determinant of the F update
 ``F <- (I + dt grad v) F`` (000 eq. 3.7): the same J to round-off, at a quarter of the cost.
+Rate-dependent and plastic models (Oldroyd-B, Herschel-Bulkley, J2) integrate their own
+state over the step from the velocity gradient itself: G2P then stores ``L_p = grad v_p``
+(the field ``L``) and each material advances its state in ``update_state``.
 
 The kernels are written once and call these helpers; numba picks the implementation from
-the array's dimension when it compiles the caller (an (n,) array is J, an (n, d, d) array F),
-so neither kernel carries a branch for the other.
+the argument's type when it compiles the caller (an (n,) array is J, an (n, d, d) array F,
+a 1-tuple ``(L,)`` of an (n, d, d) array means "store L"), so no kernel carries a branch for
+the others.
 """
 
 from __future__ import annotations
 
-from numba import types
+from numba import njit, types
 from numba.extending import overload
 
 
@@ -34,6 +38,11 @@ def volume_ratio(F, p):
 
 @overload(advance_2d, inline="always")
 def _advance_2d(F, p, dt, g00, g01, g10, g11):
+    if isinstance(F, types.UniTuple):
+        def store_L(F, p, dt, g00, g01, g10, g11):
+            L = F[0]
+            L[p, 0, 0], L[p, 0, 1], L[p, 1, 0], L[p, 1, 1] = g00, g01, g10, g11
+        return store_L
     if isinstance(F, types.Array) and F.ndim == 1:
         def advance_J(F, p, dt, g00, g01, g10, g11):
             F[p] *= (1.0 + dt * g00) * (1.0 + dt * g11) - dt * dt * g01 * g10
@@ -50,6 +59,13 @@ def _advance_2d(F, p, dt, g00, g01, g10, g11):
 
 @overload(advance_3d, inline="always")
 def _advance_3d(F, p, dt, g00, g01, g02, g10, g11, g12, g20, g21, g22):
+    if isinstance(F, types.UniTuple):
+        def store_L(F, p, dt, g00, g01, g02, g10, g11, g12, g20, g21, g22):
+            L = F[0]
+            L[p, 0, 0], L[p, 0, 1], L[p, 0, 2] = g00, g01, g02
+            L[p, 1, 0], L[p, 1, 1], L[p, 1, 2] = g10, g11, g12
+            L[p, 2, 0], L[p, 2, 1], L[p, 2, 2] = g20, g21, g22
+        return store_L
     if isinstance(F, types.Array) and F.ndim == 1:
         def advance_J(F, p, dt, g00, g01, g02, g10, g11, g12, g20, g21, g22):
             a00, a01, a02 = 1.0 + dt * g00, dt * g01, dt * g02
@@ -81,3 +97,18 @@ def _volume_ratio(F, p):
                     + F[p, 0, 2] * (F[p, 1, 0] * F[p, 2, 1] - F[p, 1, 1] * F[p, 2, 0]))
         return det_F
     return None
+
+
+@njit(cache=True)
+def advance_by_velocity_gradient(F, L, dt):
+    """``F_p <- (I + dt L_p) F_p`` for (n, d, d) F, or ``J_p <- det(I + dt L_p) J_p`` for (n,)
+    J, with L (n, d, d) the step's velocity gradient stored by G2P: exactly what G2P does
+    in modes "F" and "J" (000 eq. 3.7), for materials that share a scene with a model that
+    needs L."""
+    if L.shape[1] == 2:
+        for p in range(L.shape[0]):
+            advance_2d(F, p, dt, L[p, 0, 0], L[p, 0, 1], L[p, 1, 0], L[p, 1, 1])
+    else:
+        for p in range(L.shape[0]):
+            advance_3d(F, p, dt, L[p, 0, 0], L[p, 0, 1], L[p, 0, 2], L[p, 1, 0], L[p, 1, 1],
+                       L[p, 1, 2], L[p, 2, 0], L[p, 2, 1], L[p, 2, 2])

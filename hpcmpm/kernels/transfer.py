@@ -387,5 +387,63 @@ def gather_3d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt,
         advance_3d(F, p, dt, g00, g01, g02, g10, g11, g12, g20, g21, g22)
 
 
+@njit(cache=True)
+def scatter_forces_2d(x, f, order, dx, domain_lo, origin, dt, grid_momentum):
+    """The force channel in 2D: ``dt sum_p w_ip f_p`` onto the block's momentum (or impulse).
+
+    x, f (n, 2): positions and forces (force units, e.g. the peridynamic bond force of
+    integral-based MPM, 003 eq. 5.2 corrected: f_i = sum_p w_ip f_p)."""
+    order = len(order)  # compile-time constant: see `static`
+    inv_dx = 1.0 / dx
+    s = order + 1
+    lo0, lo1 = domain_lo[0], domain_lo[1]
+    o0, o1 = origin[0], origin[1]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        w0, _ = weights(xi0, b0, order, inv_dx)
+        w1, _ = weights(xi1, b1, order, inv_dx)
+        f0, f1 = dt * f[p, 0], dt * f[p, 1]
+        l0, l1 = b0 - o0, b1 - o1
+        for i in range(s):
+            for j in range(s):
+                wij = w0[i] * w1[j]
+                grid_momentum[l0 + i, l1 + j, 0] += wij * f0
+                grid_momentum[l0 + i, l1 + j, 1] += wij * f1
+
+
+@njit(cache=True)
+def scatter_forces_3d(x, f, order, dx, domain_lo, origin, dt, grid_momentum):
+    """The force channel in 3D; see `scatter_forces_2d`."""
+    order = len(order)  # compile-time constant: see `static`
+    inv_dx = 1.0 / dx
+    s = order + 1
+    lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        xi2 = (x[p, 2] - lo2) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        b2 = stencil_base(xi2, order)
+        w0, _ = weights(xi0, b0, order, inv_dx)
+        w1, _ = weights(xi1, b1, order, inv_dx)
+        w2, _ = weights(xi2, b2, order, inv_dx)
+        f0, f1, f2 = dt * f[p, 0], dt * f[p, 1], dt * f[p, 2]
+        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        for i in range(s):
+            for j in range(s):
+                wij = w0[i] * w1[j]
+                for k in range(s):
+                    w = wij * w2[k]
+                    grid_momentum[l0 + i, l1 + j, l2 + k, 0] += w * f0
+                    grid_momentum[l0 + i, l1 + j, l2 + k, 1] += w * f1
+                    grid_momentum[l0 + i, l1 + j, l2 + k, 2] += w * f2
+
+
 SCATTER = {2: scatter_2d, 3: scatter_3d}
+SCATTER_FORCES = {2: scatter_forces_2d, 3: scatter_forces_3d}
 GATHER = {2: gather_2d, 3: gather_3d}

@@ -100,6 +100,5 @@ class FixedCorotated(ElasticMaterial):
     """Fixed corotated solid, 003 eq. 3.5 (Stomakhin 2012)."""
 
     name = "fixed_corotated"
-    uses_svd = False  # a polar decomposition, not the SVD clamp of snow
     stress_kernels = {2: _stress_2d, 3: _stress_3d}
     energy_kernels = {2: _energy_2d, 3: _energy_3d}

@@ -15,7 +15,11 @@ and the stress is the fixed corotated one (003 eq. 3.5) of F_E with (mu, lam).
 
 Storage (Stomakhin's convention): the particle field ``F`` holds F_E after the projection,
 ``Fp`` holds F_P and ``Jp`` holds det F_P, so the total deformation gradient is ``F @ Fp``. The
-grid-to-particle update F <- (I + dt grad v) F therefore advances the trial F_E, as it must.
+grid-to-particle update F <- (I + dt grad v) F therefore advances the trial F_E, as it must;
+the projection follows at once (`return_map`, run by the step right after G2P), so frames and
+checkpoints hold the projected state. The stress kernel recomputes the polar rotation of the
+projected F_E (one more decomposition per particle than a fused clamp-and-stress kernel, the
+price of a state that is projected between steps).
 `energy` is the elastic energy of F_E with the hardened moduli.
 
 Softening (000 §4.5.2, Ram's modification): xi < 0 makes mu, lam *decrease* under plastic
@@ -55,15 +59,13 @@ def hardening(Jp, xi, max_exponent):
 
 
 @njit(cache=True)
-def _update_2d(F, Fp, Jp, tau, mu0, lam0, lo, hi, xi, max_exponent):
-    """Clamp F_E = F[p], move the excess into Fp[p] and Jp[p], write tau[p].
-    F, Fp, tau (n, 2, 2); Jp (n,). lo, hi: the clamp interval of the singular values."""
+def _project_2d(F, Fp, Jp, lo, hi):
+    """Clamp F_E = F[p], move the excess into Fp[p] and Jp[p].
+    F, Fp (n, 2, 2); Jp (n,). lo, hi: the clamp interval of the singular values."""
     for p in range(F.shape[0]):
-        f = load2(F, p)
-        U, s0, s1, V = svd2(f)
+        U, s0, s1, V = svd2(load2(F, p))
         c0 = _clamp(s0, lo, hi)
         c1 = _clamp(s1, lo, hi)
-        R = mul2_bt(U, V)
         if c0 != s0 or c1 != s1:
             r0 = s0 / c0
             r1 = s1 / c1
@@ -72,33 +74,45 @@ def _update_2d(F, Fp, Jp, tau, mu0, lam0, lo, hi, xi, max_exponent):
                  V[2] * V[0] * r0 + V[3] * V[1] * r1, V[2] * V[2] * r0 + V[3] * V[3] * r1)
             store2(Fp, p, mul2(M, load2(Fp, p)))
             Jp[p] *= r0 * r1
-            f = mul2_bt((U[0] * c0, U[1] * c1, U[2] * c0, U[3] * c1), V)
-            store2(F, p, f)
-        h = hardening(Jp[p], xi, max_exponent)
-        store2(tau, p, corotated_tau_2d(f, R, mu0 * h, lam0 * h))
+            store2(F, p, mul2_bt((U[0] * c0, U[1] * c1, U[2] * c0, U[3] * c1), V))
 
 
 @njit(cache=True)
-def _update_3d(F, Fp, Jp, tau, mu0, lam0, lo, hi, xi, max_exponent):
-    """Clamp F_E = F[p], move the excess into Fp[p] and Jp[p], write tau[p].
-    F, Fp, tau (n, 3, 3); Jp (n,). lo, hi: the clamp interval of the singular values."""
+def _project_3d(F, Fp, Jp, lo, hi):
+    """Clamp F_E = F[p], move the excess into Fp[p] and Jp[p].
+    F, Fp (n, 3, 3); Jp (n,). lo, hi: the clamp interval of the singular values."""
     for p in range(F.shape[0]):
-        f = load3(F, p)
-        U, s0, s1, s2, V = svd3(f)
+        U, s0, s1, s2, V = svd3(load3(F, p))
         c0 = _clamp(s0, lo, hi)
         c1 = _clamp(s1, lo, hi)
         c2 = _clamp(s2, lo, hi)
-        R = mul3_bt(U, V)
         if c0 != s0 or c1 != s1 or c2 != s2:
             r0 = s0 / c0
             r1 = s1 / c1
             r2 = s2 / c2
             store3(Fp, p, mul3(v_diag_vt(V, r0, r1, r2), load3(Fp, p)))
             Jp[p] *= r0 * r1 * r2
-            f = mul3_bt((U[0] * c0, U[1] * c1, U[2] * c2,
-                         U[3] * c0, U[4] * c1, U[5] * c2,
-                         U[6] * c0, U[7] * c1, U[8] * c2), V)
-            store3(F, p, f)
+            store3(F, p, mul3_bt((U[0] * c0, U[1] * c1, U[2] * c2,
+                                  U[3] * c0, U[4] * c1, U[5] * c2,
+                                  U[6] * c0, U[7] * c1, U[8] * c2), V))
+
+
+@njit(cache=True)
+def _stress_2d(F, Jp, tau, mu0, lam0, xi, max_exponent):
+    """Fixed corotated tau of the (projected) F_E with the hardened moduli; F, tau (n, 2, 2)."""
+    for p in range(F.shape[0]):
+        f = load2(F, p)
+        R, _ = polar2(f)
+        h = hardening(Jp[p], xi, max_exponent)
+        store2(tau, p, corotated_tau_2d(f, R, mu0 * h, lam0 * h))
+
+
+@njit(cache=True)
+def _stress_3d(F, Jp, tau, mu0, lam0, xi, max_exponent):
+    """Fixed corotated tau of the (projected) F_E with the hardened moduli; F, tau (n, 3, 3)."""
+    for p in range(F.shape[0]):
+        f = load3(F, p)
+        R, _ = polar3(f)
         h = hardening(Jp[p], xi, max_exponent)
         store3(tau, p, corotated_tau_3d(f, R, mu0 * h, lam0 * h))
 
@@ -146,7 +160,6 @@ class Snow(Material):
                                   "finite; default |xi|"),
     }
     fields = {"Fp": FieldSpec(TENSOR, "f8", "identity"), "Jp": FieldSpec(SCALAR, "f8", 1.0)}
-    uses_svd = True
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
@@ -156,18 +169,23 @@ class Snow(Material):
         self.upper = 1.0 + q["theta_s"]
         self.xi = q["xi"]
         self.max_exponent = abs(self.xi) if q["max_exponent"] is None else q["max_exponent"]
-        self._update = _update_2d if dim == 2 else _update_3d
+        self._project = _project_2d if dim == 2 else _project_3d
+        self._stress = _stress_2d if dim == 2 else _stress_3d
         self._energy = _energy_2d if dim == 2 else _energy_3d
 
     def hardening(self, Jp: float) -> float:
         """The factor h(Jp) on mu0 and lam0."""
         return float(hardening(Jp, self.xi, self.max_exponent))
 
+    def return_map(self, fields, dt: float) -> None:
+        """Projects fields["F"] (n, d, d, the trial F_E G2P advanced) onto the clamp and
+        moves the excess into fields["Fp"] (n, d, d) and fields["Jp"] (n,)."""
+        self._project(fields["F"], fields["Fp"], fields["Jp"], self.lower, self.upper)
+
     def update_stress(self, fields, dt: float) -> None:
-        """Projects fields["F"] (n, d, d, trial F_E) onto the clamp, updates fields["Fp"]
-        (n, d, d) and fields["Jp"] (n,), writes fields["tau"] (n, d, d)."""
-        self._update(fields["F"], fields["Fp"], fields["Jp"], fields["tau"], self.mu, self.lam,
-                     self.lower, self.upper, self.xi, self.max_exponent)
+        """Writes fields["tau"] (n, d, d) from the projected F_E and the hardening of Jp."""
+        self._stress(fields["F"], fields["Jp"], fields["tau"], self.mu, self.lam, self.xi,
+                     self.max_exponent)
 
     def energy(self, fields) -> float:
         """sum_p vol0_p psi_FC(F_E,p; mu(Jp), lam(Jp))."""

@@ -12,7 +12,7 @@ which differs from mpm88 at finite compression.) E is the bulk modulus at rest, 
 speed is sqrt(E / rho).
 
 A fluid has no memory of shape: J is its only state. A scene whose materials are all
-volumetric carries J alone (`volumetric = True`; see `hpcmpm.kernels.deformation`); in a scene
+volumetric carries J alone (`deformation = "J"`; see `hpcmpm.kernels.deformation`); in a scene
 that also holds solids the fluid's particles carry F like the others, and after the stress is
 computed F is reset to J^(1/d) I, which keeps J and keeps F well conditioned however much the
 flow shears it (as Taichi's mpm99 does for its fluid).
@@ -24,21 +24,16 @@ import math
 
 from numba import njit
 
+from ..kernels.deformation import volume_ratio
 from .base import Material, Param
 from .tensors import det2, det3, load2, load3
 
 
 @njit(cache=True)
-def _stress_2d(F, tau, E):
-    """tau_p = E (J - 1) I, then F_p = sqrt(J) I; F, tau (n, 2, 2)."""
+def _forget_shear_2d(F):
+    """F_p <- sqrt(J_p) I; F (n, 2, 2)."""
     for p in range(F.shape[0]):
-        J = det2(load2(F, p))
-        s = E * (J - 1.0)
-        tau[p, 0, 0] = s
-        tau[p, 0, 1] = 0.0
-        tau[p, 1, 0] = 0.0
-        tau[p, 1, 1] = s
-        r = math.sqrt(J)
+        r = math.sqrt(det2(load2(F, p)))  # NaN for J <= 0, which the health check reports
         F[p, 0, 0] = r
         F[p, 0, 1] = 0.0
         F[p, 1, 0] = 0.0
@@ -46,16 +41,24 @@ def _stress_2d(F, tau, E):
 
 
 @njit(cache=True)
-def _stress_3d(F, tau, E):
-    """tau_p = E (J - 1) I, then F_p = J^(1/3) I; F, tau (n, 3, 3)."""
+def _forget_shear_3d(F):
+    """F_p <- J_p^(1/3) I; F (n, 3, 3)."""
     for p in range(F.shape[0]):
-        J = det3(load3(F, p))
-        s = E * (J - 1.0)
-        r = J ** (1.0 / 3.0)  # NaN for J <= 0, which the health check reports
+        r = det3(load3(F, p)) ** (1.0 / 3.0)  # NaN for J <= 0, which the health check reports
         for i in range(3):
             for j in range(3):
-                tau[p, i, j] = s if i == j else 0.0
                 F[p, i, j] = r if i == j else 0.0
+
+
+@njit(cache=True)
+def _stress_from_F(F, tau, E):
+    """tau_p = E (J_p - 1) I with J_p = det F_p; F, tau (n, d, d)."""
+    d = F.shape[1]
+    for p in range(F.shape[0]):
+        s = E * (volume_ratio(F, p) - 1.0)
+        for i in range(d):
+            for j in range(d):
+                tau[p, i, j] = s if i == j else 0.0
 
 
 @njit(cache=True, inline="always")
@@ -116,21 +119,25 @@ class WeaklyCompressible(Material):
     name = "weakly_compressible"
     parameters = {"E": Param(0.0, math.inf, doc="bulk modulus (stress units); tau = E (J - 1) I")}
     fields = {}
-    uses_svd = False
-    volumetric = True
+    deformation = "J"
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
         # Small-strain response tau = E tr(eps) I: lam = E, mu = 0, wave speed sqrt(E / rho).
         self.mu, self.lam = 0.0, self.params["E"]
-        self._stress = _stress_2d if dim == 2 else _stress_3d
+        self._forget_shear = _forget_shear_2d if dim == 2 else _forget_shear_3d
         self._energy = _energy_2d if dim == 2 else _energy_3d
+
+    def return_map(self, fields, dt: float) -> None:
+        """In a scene that carries F, reset F to J^(1/d) I after G2P advanced it."""
+        if "F" in fields:
+            self._forget_shear(fields["F"])
 
     def update_stress(self, fields, dt: float) -> None:
         """Writes fields["tau"] (n, d, d) from fields["J"] (n,) when the scene carries J
-        alone, else from fields["F"] (n, d, d), which it resets to J^(1/d) I."""
+        alone, else from fields["F"] (n, d, d) = J^(1/d) I."""
         if "F" in fields:
-            self._stress(fields["F"], fields["tau"], self.params["E"])
+            _stress_from_F(fields["F"], fields["tau"], self.params["E"])
         else:
             _stress_from_J(fields["J"], fields["tau"], self.params["E"])
 
