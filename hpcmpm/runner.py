@@ -95,6 +95,12 @@ class Runner:
         every = sim.scene.output.every
         self.frame_every = every if every and every > 0 else options.end_time
 
+    def restore_time_step_state(self, meta: dict) -> None:
+        """The time-step state a checkpoint holds: the last dt and whether the fixed-dt
+        warning was given (so a restarted run does not repeat it)."""
+        self.last_dt = float(meta.get("last_dt", self.last_dt))
+        self.dt_warned = bool(meta.get("dt_warned", self.dt_warned))
+
     # -- schedule --------------------------------------------------------------------------
     def frame_time(self, k: int) -> float:
         """Simulated time of frame k: 0, every, 2 every, ..., and the end time."""
@@ -373,10 +379,13 @@ def run_command(args, signal_flag: SignalFlag | None = None) -> int:
 
 
 def execute(sim: Simulation, options: RunOptions, comm: Communicator, frame_index: int,
-            first_frame_written: bool, signal_flag: SignalFlag | None = None) -> int:
+            first_frame_written: bool, signal_flag: SignalFlag | None = None,
+            restored: dict | None = None) -> int:
     writer = make_writer(sim, options.out_dir, options.restart_chain, frame_index)
     runner = Runner(sim, writer, options, frame_index, first_frame_written,
                     signal_flag=signal_flag)
+    if restored is not None:
+        runner.restore_time_step_state(restored)
     start, step0 = time.perf_counter(), sim.step_index
     diag = runner.run()
     n = sim.domain.sum(sim.particles.n)
@@ -399,9 +408,14 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     sim = Simulation(scene, domain)
     specs = dict(sim.particles.specs)
     sim.particles = ParticleSet(scene.dim, specs, capacity=len(fields["id"]))
+    derived = set()
     if "J" in specs and "J" not in fields and "F" in fields:
         # Written before fluid-only scenes carried J alone: J = det F is their whole state.
         fields["J"] = np.linalg.det(fields["F"])
+        derived = {"F"}
+    mismatch = field_mismatch(Path(ckpt).name, set(fields) - derived, set(specs))
+    if mismatch and comm.rank == 0:
+        log.warning("%s", mismatch)
     sim.particles.append({k: v for k, v in fields.items() if k in specs})
     same_count = int(meta["n_ranks"]) == domain.size
     if same_count:
@@ -414,6 +428,19 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     sim.time = float(meta["time"])
     sim.step_index = int(meta["step"])
     return sim, meta, end_time if end_time is not None else float(meta["end_time"])
+
+
+def field_mismatch(name: str, stored: set[str], declared: set[str]) -> str | None:
+    """One line when the checkpoint's particle fields and the ones this run declares differ
+    (a checkpoint of another version of hpcmpm): what is dropped, what starts from defaults."""
+    dropped, filled = sorted(stored - declared), sorted(declared - stored)
+    parts = []
+    if dropped:
+        parts.append(f"drops checkpoint fields this run does not declare: {', '.join(dropped)}")
+    if filled:
+        parts.append(f"starts declared fields the checkpoint lacks from their defaults: "
+                     f"{', '.join(filled)}")
+    return f"restart from {name} {'; '.join(parts)}" if parts else None
 
 
 def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
@@ -437,7 +464,7 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
                          restart_chain=chain)
     runner_frames = int(meta["frame_index"])
     return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True,
-                   signal_flag=signal_flag)
+                   signal_flag=signal_flag, restored=meta)
 
 
 def nothing_to_run(comm: Communicator, ckpt: Path, time_now: float, end_time: float,

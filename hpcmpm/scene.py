@@ -444,28 +444,19 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
 def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
                          transfer, prescribed, integrator) -> None:
     """Each requested field must exist in this scene's particles (the writer would skip it
-    silently otherwise): a core field, a field of one of its materials, ``C`` for APIC/MLS,
-    ``prescribed`` when there are prescribed sets."""
+    silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
+    what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
     from .materials import MATERIALS
-    from .state import CORE_FIELDS
-
-    from .simulation import deformation_fields, deformation_mode
+    from .simulation import deformation_mode, particle_field_specs
     from .solvers import INTEGRATORS
+    from .state import CORE_FIELDS
 
     if transfer is None or integrator is None or not materials_complete:
         return  # a bad material or transfer is reported already; the list would mislead
-    valid = list(CORE_FIELDS)
-    # The deformation state (F, J, or L with F and/or J); tau, the Kirchhoff stress, is
-    # computed for output.
     classes = [MATERIALS[m.type] for m in materials]
     mode = deformation_mode(classes, INTEGRATORS[integrator].needs_velocity_gradient)
-    valid += list(deformation_fields(classes, mode)) + ["tau"]
-    for m in materials:
-        valid += [f for f in MATERIALS[m.type].fields if f not in valid]
-    if transfer in ("apic", "mls"):
-        valid.append("C")
-    if prescribed:
-        valid.append("prescribed")
+    valid = list(CORE_FIELDS) + list(particle_field_specs(classes, mode, transfer,
+                                                          bool(prescribed))) + ["tau"]
     for i, name in enumerate(output.fields):
         if name not in valid:
             close = difflib.get_close_matches(name, valid, n=1)

@@ -51,6 +51,22 @@ def deformation_fields(materials, mode: str) -> dict[str, FieldSpec]:
     return specs
 
 
+def particle_field_specs(materials, mode: str, transfer: str,
+                         prescribed: bool) -> dict[str, FieldSpec]:
+    """The particle fields a scene declares besides the core ones: its deformation state in
+    ``mode``, its materials' own fields, ``C`` for APIC/MLS, ``prescribed`` when it has
+    prescribed sets. One source for `Simulation.particle_fields` and the scene's check of
+    ``output.fields``; ``materials`` are material classes or instances."""
+    specs = deformation_fields(materials, mode)
+    for material in materials:
+        specs.update(material.fields)
+    if SCHEMES[transfer] >= APIC:
+        specs["C"] = FieldSpec(TENSOR)
+    if prescribed:
+        specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
+    return specs
+
+
 class Simulation:
     """Particles, grid block, materials and boundaries of one rank, and the step over them."""
 
@@ -137,14 +153,8 @@ class Simulation:
     # -- set-up ----------------------------------------------------------------------------
     def particle_fields(self) -> dict[str, FieldSpec]:
         """Union of the fields the materials and the chosen features declare."""
-        specs = deformation_fields(self.materials, self.deformation)
-        for material in self.materials:
-            specs.update(material.fields)
-        if self.scheme >= APIC:
-            specs["C"] = FieldSpec(TENSOR)
-        if self.scene.prescribed:
-            specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
-        return specs
+        return particle_field_specs(self.materials, self.deformation, self.scene.transfer,
+                                    bool(self.scene.prescribed))
 
     def add_extension(self, extension) -> None:
         """Add a step extension: its ``particle_forces(sim, dt)`` (if any) yields

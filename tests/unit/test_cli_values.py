@@ -142,3 +142,53 @@ def test_frame_times_are_the_decimal_times_the_scene_asks_for():
     # Never more than an ulp or two from k * every: the schedule is the same.
     assert all(abs(frame_time(k, 0.07, 1e9) - k * 0.07) <= 2 * math.ulp(k * 0.07)
                for k in range(1, 10000))
+
+
+def test_restart_restores_the_time_step_state(tmp_path, caplog, monkeypatch):
+    import logging
+
+    from hpcmpm import runner
+
+    # A fixed dt 6 % above the bar's CFL bound (0.0198): warned once in the first run.
+    out = tmp_path / "warned"
+    fixed = ["--quiet", "--set", "simulation.dt=0.021", "--set", "output.every=0.105"]
+    with caplog.at_level(logging.WARNING):
+        assert cli.main(["run", BAR, "--out", str(out), "--end-time", "0.105", *fixed]) == 0
+    assert sum("exceeds the CFL bound" in r.message for r in caplog.records) == 1
+    caplog.clear()
+    seen = {}
+    original = runner.Runner.run
+
+    def spy(self):
+        seen.update(last_dt=self.last_dt, dt_warned=self.dt_warned)
+        return original(self)
+
+    monkeypatch.setattr(runner.Runner, "run", spy)
+    with caplog.at_level(logging.WARNING):
+        assert cli.main(["restart", str(out / "ckpt_000000005.h5"), "--end-time", "0.21",
+                         "--quiet"]) == 0
+    assert seen == {"last_dt": pytest.approx(0.021), "dt_warned": True}
+    assert not any("exceeds the CFL bound" in r.message for r in caplog.records)
+
+
+def test_restart_reports_fields_it_drops_or_fills_in_one_line(short_run, caplog, monkeypatch,
+                                                             tmp_path):
+    import logging
+
+    from hpcmpm.io import checkpoint
+
+    original = checkpoint.read_checkpoint
+
+    def other_version(path, domain):
+        fields, meta = original(path, domain)
+        fields["Jp_old"] = fields.pop("C")[:, 0, 0].copy()  # one field renamed
+        return fields, meta
+
+    monkeypatch.setattr(checkpoint, "read_checkpoint", other_version)
+    with caplog.at_level(logging.WARNING):
+        assert cli.main(["restart", str(short_run / "ckpt_000000014.h5"), "--end-time", "0.15",
+                         "--out", str(tmp_path / "again"), "--quiet"]) == 0
+    lines = [r.message for r in caplog.records if "restart from" in r.message]
+    assert lines == ["restart from ckpt_000000014.h5 drops checkpoint fields this run does not "
+                     "declare: Jp_old; starts declared fields the checkpoint lacks from their "
+                     "defaults: C"]

@@ -107,7 +107,7 @@ CASES = {
                             "bodies[0].velocity_field.type: unknown value 'axial'"),
     "output_field": (GOOD.replace("every = 0.1", 'every = 0.1\nfields = ["Jp"]'),
                      "output.fields[0]: no particle field 'Jp' in this scene (available: id, "
-                     "group, x, v, mass, vol0, F, tau, C)"),
+                     "group, x, v, mass, vol0, F, C, tau)"),
     "max_dt": (GOOD.replace("cfl = 0.4", "cfl = 0.4\nmax_dt = -1e-3"),
                "simulation.max_dt: must be > 0.0, got -0.001"),
     "checkpoint_every": (GOOD.replace("every = 0.1", "every = 0.1\ncheckpoint_every = 0"),
@@ -271,3 +271,18 @@ normal = [0.0, 1.0]
     # By name and by index reach the same entry.
     assert parse_scene(GOOD, "s", ["bodies.lower_left.radius=0.1"]) == \
         parse_scene(GOOD, "s", ["bodies.0.radius=0.1"])
+
+
+@pytest.mark.parametrize("path", sorted(Path("inputs").glob("*.toml")), ids=lambda p: p.stem)
+def test_output_fields_offered_are_the_fields_the_run_allocates(path):
+    """One source (simulation.particle_field_specs): the scene check offers exactly the fields a
+    Simulation of the scene allocates, plus tau (computed for output)."""
+    from hpcmpm.runner import make_domain
+    from hpcmpm.simulation import Simulation
+
+    with pytest.raises(SceneError) as info:
+        load_scene(path, ['output.fields=["no_such_field"]'])
+    offered = info.value.problems[0].split("available: ")[1].rstrip(")").split(", ")
+    scene = load_scene(path)
+    allocated = set(Simulation(scene, make_domain(scene)).particles.specs)
+    assert set(offered) == allocated | {"tau"}, (offered, allocated)
