@@ -56,6 +56,8 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path, uninterrupted, first
     got, attrs = final_frame(tmp_path)
     ref, ref_attrs = uninterrupted[first]
     assert attrs["step"] == ref_attrs["step"] == 200
+    # Each launch was one world of the asked size (not N separate 1-rank runs).
+    assert (attrs["n_ranks"], ref_attrs["n_ranks"]) == (second, first)
     assert attrs["time"] == ref_attrs["time"]
     assert np.array_equal(got["id"], ref["id"])
     frames = sorted(tmp_path.glob("frame_*.h5"))
@@ -96,6 +98,7 @@ def test_signal_writes_a_checkpoint_that_restarts(tmp_path, ranks, sig):
     assert 0 < t_ckpt < 1000
     hpcmpm(ranks, "restart", str(ckpt), "--end-time", str(t_ckpt + 0.1), "--quiet")
     _, attrs = final_frame(tmp_path)
+    assert attrs["n_ranks"] == ranks
     assert attrs["time"] == pytest.approx(t_ckpt + 0.1)
     assert attrs["step"] > step_ckpt
 

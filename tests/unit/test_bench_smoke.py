@@ -8,11 +8,11 @@ import json
 import math
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from launch import run_in_group
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = REPO / "scripts"
@@ -23,8 +23,8 @@ NO_TAICHI = "taichi not installed (pip install -e '.[bench]')"
 def run_script(name: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
     env.setdefault("NUMBA_CACHE_DIR", str(REPO / ".numba_cache"))
-    result = subprocess.run([sys.executable, str(SCRIPTS / name), *args], cwd=REPO, env=env,
-                            capture_output=True, text=True, timeout=timeout)
+    result = run_in_group([sys.executable, str(SCRIPTS / name), *args], cwd=REPO, env=env,
+                          timeout=timeout)
     assert result.returncode == 0, f"{name} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     return result
 

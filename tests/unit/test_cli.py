@@ -1,20 +1,19 @@
 """Bad scenes through the console script: one line naming file and key, exit code 2, no
 traceback. Each case edits a valid scene so exactly one thing is wrong."""
 
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from test_scene import CASES
+from launch import run_in_group
 
 GOOD = Path("inputs/disks_2d.toml").read_text()
 
 
 def hpcmpm(*args, cwd=None):
     exe = Path(sys.executable).with_name("hpcmpm")
-    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=120,
-                          cwd=cwd)
+    return run_in_group([str(exe), *args], timeout=120, cwd=cwd)
 
 
 # The expected lines live in test_scene.CASES; through the console script each kind of

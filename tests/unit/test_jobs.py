@@ -9,6 +9,7 @@ import pytest
 
 from hpcmpm.errors import EXIT_CHECKPOINTED_ON_SIGNAL
 from hpcmpm.jobs import JobScriptError, render
+from launch import run_in_group
 
 
 @pytest.mark.parametrize("scheduler", ["slurm", "pbs"])
@@ -45,8 +46,7 @@ def _run_with_stubs(tmp_path, scheduler, launcher, exit_code, script_name="job.s
     script = tmp_path / script_name
     script.write_text(text)
     env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", SLURM_JOB_ID="42")
-    proc = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True,
-                          timeout=60, cwd=tmp_path)
+    proc = run_in_group(["bash", str(script)], env=env, timeout=60, cwd=tmp_path)
     return proc, log.read_text().splitlines(), out
 
 
