@@ -13,16 +13,19 @@ from typing import Any
 from ..errors import SceneError
 from .base import ElasticMaterial, Material, Param, check_params, lame
 from .fixed_corotated import FixedCorotated
+from .herschel_bulkley import HerschelBulkley
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
+from .oldroyd_b import OldroydB
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
+from .von_mises import VonMises
 from .weakly_compressible import WeaklyCompressible
 
 MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
-                WeaklyCompressible)
+                WeaklyCompressible, OldroydB, HerschelBulkley, VonMises)
 }
 
 
@@ -39,7 +42,7 @@ def validate_params(type_name: str, params: dict[str, Any]) -> list[str]:
     cls = MATERIALS.get(type_name)
     if cls is None:
         return [_unknown_type(type_name)]
-    return check_params(cls.parameters, params)
+    return cls.parameter_problems(params)
 
 
 def make_material(spec, dim: int) -> Material:
@@ -53,4 +56,5 @@ def make_material(spec, dim: int) -> Material:
 
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
            "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
-           "StableNeoHookean", "Snow", "WeaklyCompressible"]
+           "StableNeoHookean", "Snow", "WeaklyCompressible", "OldroydB", "HerschelBulkley",
+           "VonMises"]
