@@ -166,7 +166,7 @@ def test_unwritable_folder_is_a_checkpoint_error(tmp_path):
 def test_fluid_checkpoint_holding_F_restarts_with_J(tmp_path, monkeypatch):
     """A checkpoint of a fluid-only scene written when particles still carried F (before J
     alone) restarts with J = det F, not with the fill value 1."""
-        import sys
+    import sys
     from pathlib import Path
 
     from hpcmpm import runner
