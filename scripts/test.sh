@@ -11,12 +11,13 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/scripts/install.sh" test,bench >/dev/null
 cd "$root"
 . scripts/apt.sh
-# Where root and apt-get allow (elsewhere these tests are skipped with their reason):
-# real ParaView opens the XDMF output (tests/unit/test_io_paraview.py; about 1 minute), and a
-# private one-node SLURM runs the rendered job script (tests/mpi/test_slurm_cluster.py; Debian's
-# SLURM 22.05 and munge, about 10 s). A failed install prints apt-get's own words.
-if ! command -v pvpython >/dev/null 2>&1; then
-    apt_install ParaView paraview python3-paraview || true
+# Where root and apt-get allow (elsewhere these tests are skipped with their reason): real
+# ParaView opens and renders the XDMF output under xvfb (tests/unit/test_io_paraview.py; about
+# 1 minute), and a private one-node SLURM runs the rendered job script
+# (tests/mpi/test_slurm_cluster.py; Debian's SLURM 22.05 and munge, about 10 s). A failed
+# install prints apt-get's own words.
+if ! command -v pvpython >/dev/null 2>&1 || ! command -v xvfb-run >/dev/null 2>&1; then
+    apt_install ParaView paraview python3-paraview xvfb xauth || true
 fi
 if ! command -v slurmctld >/dev/null 2>&1 || ! command -v munged >/dev/null 2>&1; then
     apt_install SLURM slurmctld slurmd slurm-client munge || true
