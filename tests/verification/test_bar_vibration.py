@@ -26,11 +26,12 @@ def run_bar(cells: int, transfer: str = "mls", history_out: list | None = None):
     scene = load_scene("inputs/bar_2d.toml",
                        [f"simulation.dx={L / cells}", "simulation.end_time=8.0",
                         f'simulation.transfer="{transfer}"'])
-    return period_and_amplitude(scene, axis=0)
+    return period_and_amplitude(scene, axis=0, history_out=history_out)
 
 
-def period_and_amplitude(scene, axis: int):
-    """Period and |v_cm| at half a period of the axial mode along ``axis``."""
+def period_and_amplitude(scene, axis: int, history_out: list | None = None):
+    """Period and |v_cm| at half a period of the axial mode along ``axis`` (the (t, v_cm)
+    history appended to ``history_out`` when given)."""
     history = []
 
     def observe(sim):
