@@ -32,13 +32,10 @@ def configure_logging(quiet: bool = False) -> None:
 
 
 def _validate(args) -> int:
-    from .geometry import sample_scene
     from .scene import load_scene
+    from .startup import validate_report
 
-    scene = load_scene(args.scene, args.set or [])
-    n = len(sample_scene(scene)["id"])
-    print(f"{args.scene}: ok ({count(n, 'particle')}, {count(len(scene.materials), 'material')}, "
-          f"dim {scene.dim})")
+    print(validate_report(load_scene(args.scene, args.set or [])))
     return 0
 
 
@@ -137,6 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--checkpoint-wall", metavar="HH:MM:SS", help=CHECKPOINT_WALL_HELP)
     run.add_argument("--debug-checks", action="store_true",
                      help="check the global particle count every step")
+    run.add_argument("--dry-run", action="store_true",
+                     help="sample and decompose, report counts and memory per rank, exit")
     run.set_defaults(handler=_run)
 
     restart = verbs.add_parser("restart", help="continue from a checkpoint",
