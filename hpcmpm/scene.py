@@ -544,7 +544,8 @@ def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
         p = f"materials[{i}]"
         name = c.string(m, "name", p)
         mtype = c.string(m, "type", p, choices=sorted(MATERIALS))
-        density = c.number(m, "density", p, low=0.0)
+        # high=inf: finite (the Checker admits +inf only where no upper bound is given)
+        density = c.number(m, "density", p, low=0.0, high=math.inf)
         if name in names:
             c.problem(f"{p}.name", f"duplicate material name {name!r}")
         names.add(name)
