@@ -19,7 +19,7 @@ from .comm import Communicator
 
 # Seconds the copies other than the launcher's rank 0 wait before they exit: copy 0 reports
 # and exits first, and `srun --kill-on-bad-exit` may stop the others, never copy 0 unheard.
-REPORT_GRACE = 5.0
+REPORT_GRACE = 2.0
 
 
 def check_launch(comm: Communicator | None = None,

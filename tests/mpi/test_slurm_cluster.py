@@ -8,6 +8,9 @@ with free ports and state under tmp, so nothing of the machine's own set-up is t
 - plain `srun` on a cluster whose MpiDefault is none: 2 separate 1-rank runs, refused at
   start-up with one line, exit 2, nothing written.
 
+A healthy run takes 40-80 s, most of it SLURM's own 30 s time-limit cycle; the waits are
+minutes, for a loaded machine whose numba cache is cold.
+
 Needs root and Debian's slurmctld, slurmd, slurm-client and munge (scripts/test.sh installs them
 where apt-get allows); skipped with the reason elsewhere.
 """
@@ -264,17 +267,18 @@ def test_rendered_script_on_a_real_slurm(cluster):
 
     # -- the singleton launch is refused at start-up, once, before anything is written --------
     job = jobs["singletons"]
-    wait_for("finish", finished(job), 60, cluster, job)
+    wait_for("finish", finished(job), 180, cluster, job)
     info, log = cluster.job(job), log_of(cluster, job)
     assert info["ExitCode"] == "2:0", (info, log)
-    told = [l for l in log.splitlines() if l.startswith("hpcmpm:")]
+    told = [l for l in log.splitlines()
+            if l.startswith(("hpcmpm: error:", "hpcmpm: stopped:"))]
     assert len(told) == 1 and told[0].startswith(
         "hpcmpm: error: launched as 2 separate 1-rank runs: srun started 2 tasks"), log
     assert not frames(runs / "singletons")
 
     # -- a 2-rank run with --mpi=pmi2 is one 2-rank world -------------------------------------
     job = jobs["complete"]
-    wait_for("finish", finished(job), 90, cluster, job)
+    wait_for("finish", finished(job), 240, cluster, job)
     info, log = cluster.job(job), log_of(cluster, job)
     assert info["ExitCode"] == "0:0", (info, log)
     assert log.count("output: ") == 1, log
@@ -288,7 +292,7 @@ def test_rendered_script_on_a_real_slurm(cluster):
     # SLURM checks time limits every 30 s and sends the warning up to a minute early: with a
     # 1-minute limit and a 10 s margin, between 20 and 50 s after the start.
     wait_for("requeue after the wall-time signal",
-             lambda: int(cluster.job(job).get("Restarts", "0")) >= 1, 90, cluster, job)
+             lambda: int(cluster.job(job).get("Restarts", "0")) >= 1, 240, cluster, job)
     log = log_of(cluster, job)
     stopped = [l for l in log.splitlines() if l.startswith("hpcmpm: stopped: SIGUSR1")]
     assert len(stopped) == 1, log  # once per job, labelled as the expected event it is
@@ -304,7 +308,7 @@ def test_rendered_script_on_a_real_slurm(cluster):
         _, attrs = read_frame(later[-1])
         return attrs
 
-    attrs = wait_for("a frame written after the resume", resumed, 60, cluster, job)
+    attrs = wait_for("a frame written after the resume", resumed, 180, cluster, job)
     assert attrs["n_ranks"] == 2
     assert str(ckpt.name) in attrs["restart_chain"], attrs["restart_chain"]
 
