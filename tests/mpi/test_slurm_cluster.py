@@ -84,10 +84,11 @@ class Cluster:
         self.daemons: list[subprocess.Popen] = []
         self.jobs: list[int] = []
 
-    def _daemon(self, *cmd: str) -> None:
-        log = open(self.folder / f"{Path(cmd[0]).name}.out", "w")
+    def _daemon(self, *cmd: str) -> subprocess.Popen:
+        log = open(self.folder / f"{Path(cmd[0]).name}.out", "a")
         self.daemons.append(subprocess.Popen(cmd, env=self.env, stdout=log,
                                              stderr=subprocess.STDOUT))
+        return self.daemons[-1]
 
     def start(self) -> None:
         f = self.folder
@@ -99,6 +100,31 @@ class Cluster:
         self._daemon(_exe("munged"), "--foreground", "--force", f"--socket={f}/munge.sock",
                      f"--key-file={key}", f"--pid-file={f}/munged.pid",
                      f"--log-file={f}/munged.log", f"--seed-file={f}/munged.seed")
+        deadline = time.time() + 120  # seconds on an idle machine; minutes on a loaded one
+        while not (f / "munge.sock").exists() and time.time() < deadline:
+            time.sleep(0.1)
+        for _ in range(3):  # a free port can be taken by another process before slurmctld binds
+            self.write_conf()
+            controller = self._daemon(_exe("slurmctld"), "-D")
+            node = self._daemon(_exe("slurmd"), "-D", "-N", self.node)
+            while time.time() < deadline and controller.poll() is None:
+                out = self.scontrol("show", "node", self.node, check=False)
+                if re.search(r"State=IDLE", out):
+                    return
+                time.sleep(0.5)
+            for proc in (node, controller):
+                proc.terminate()
+                try:
+                    proc.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+            self.daemons = self.daemons[:-2]
+        raise RuntimeError(f"the SLURM node did not come up:\n"
+                           f"{(f / 'slurmctld.log').read_text()[-3000:]}")
+
+    def write_conf(self) -> None:
+        f = self.folder
         # CPUs=6 on a smaller machine (config_overrides): the three jobs run side by side.
         # cred_expire: a requeued job waits that long (+1 s) before it may start again (its old
         # credential must expire first; forcing StartTime=now instead was refused at random
@@ -138,18 +164,6 @@ SchedulerParameters=sched_interval=1
 NodeName={self.node} NodeAddr=127.0.0.1 CPUs=6 RealMemory=1000 State=UNKNOWN
 PartitionName=debug Nodes={self.node} Default=YES MaxTime=INFINITE State=UP
 """)
-        deadline = time.time() + 120  # seconds on an idle machine; minutes on a loaded one
-        while not (f / "munge.sock").exists() and time.time() < deadline:
-            time.sleep(0.1)
-        self._daemon(_exe("slurmctld"), "-D")
-        self._daemon(_exe("slurmd"), "-D", "-N", self.node)
-        while time.time() < deadline:
-            out = self.scontrol("show", "node", self.node, check=False)
-            if re.search(r"State=IDLE", out):
-                return
-            time.sleep(0.5)
-        raise RuntimeError(f"the SLURM node did not come up:\n{out}\n"
-                           f"{(f / 'slurmctld.log').read_text()[-3000:]}")
 
     def stop(self) -> None:
         """Cancel our jobs, wait for their processes to end (slurmstepd outlives slurmd), then
