@@ -216,6 +216,11 @@ class Runner:
             "needs_sort": np.asarray(domain.allgather(sim.needs_sort), dtype=np.int8),
         }
         with sim.timers("checkpoint"):
+            # Side structures first (PD bonds): a particle checkpoint that exists has them.
+            for extension in sim.extensions:
+                if hasattr(extension, "write_checkpoint"):
+                    extension.write_checkpoint(self.options.out_dir, sim.step_index,
+                                               self.options.checkpoint_keep)
             self._latest_ckpt = write_checkpoint(self.options.out_dir, domain, sim.particles,
                                                  meta, keep=self.options.checkpoint_keep)
 
@@ -424,6 +429,9 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
         domain.decompose(sim.particles)
     sim.time = float(meta["time"])
     sim.step_index = int(meta["step"])
+    for extension in sim.extensions:
+        if hasattr(extension, "restore"):
+            extension.restore(ckpt)  # side structures (PD bonds) of this checkpoint
     return sim, meta, end_time if end_time is not None else float(meta["end_time"])
 
 

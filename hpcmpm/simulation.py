@@ -140,6 +140,10 @@ class Simulation:
         self.extensions: list = []
         self._force_sources: list = []
         self._after_g2p: list = []
+        # A material that works through a step extension (peridynamics) makes its own.
+        for material in self.materials:
+            if hasattr(material, "make_extension"):
+                self.add_extension(material.make_extension(self))
         self.time = 0.0
         self.step_index = 0
         # Optional ``forcing(sim, dt)`` that adds ``dt * b`` to particle velocities before P2G:

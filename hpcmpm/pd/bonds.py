@@ -1,0 +1,267 @@
+"""Peridynamic bonds: a side structure of half-bonds in CSR, not a particle field.
+
+Each owned PD particle ``i`` holds its half-bonds ``offsets[i]:offsets[i+1]``; both ends of a
+bond hold one half-bond each, and both evaluate the bond from the same inputs (see the model
+kernels), so a bond that crosses a rank boundary needs no reverse communication. Partners are
+named by their permanent global id and each segment is ordered by it, so a particle sums its
+bonds in the same order on any rank count. MPM-only particles carry nothing.
+
+Resident bytes per half-bond (`Bonds.resident_bytes_per_bond`):
+
+=========  =======  ==================================================================
+array      dtype    meaning
+=========  =======  ==================================================================
+partner    int64    global id of the other end (permanent; migrates and checkpoints)
+weight     float64  omega(|X|) * beta: influence function times the partial-volume
+                    fraction of the partner (fixed in the reference configuration)
+slot       int32    local row of the partner in the (owned + halo) point arrays; rebuilt
+                    with the halo plan, -1 when unresolved (allowed for broken bonds only)
+status     int8     1 intact, 0 broken (irreversible, 003 eq. 4.8)
+=========  =======  ==================================================================
+
+21 B in all, plus 8 B per optional per-bond float64 state array (`state`, e.g. a plastic
+bond stretch or a viscous force for the models that need them) and 8 B per particle for
+``offsets``. The reference bond ``X`` is not stored: it is ``x0[slot] - x0[i]`` from the
+reference positions that the halo carries anyway (correspondence needs the vector), and both
+ends recompute it bit-identically (negating a difference is exact).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+INTACT, BROKEN = np.int8(1), np.int8(0)
+# The arrays every half-bond has, in the order segments are packed for migration/checkpoints.
+CORE_BOND_FIELDS = ("partner", "weight", "status")
+
+
+class Bonds:
+    """Half-bonds of ``n`` particles in CSR.
+
+    Parameters
+    ----------
+    offsets : (n + 1,) int64, segment starts.
+    partner : (nb,) int64 global ids, ascending within each segment.
+    weight : (nb,) float64, omega * beta.
+    status : (nb,) int8, 1 intact / 0 broken (default all intact).
+    slot : (nb,) int32 local partner rows (default -1: resolve with `resolve_slots`).
+    state : optional dict of per-bond float64 arrays (nb,).
+    """
+
+    def __init__(self, offsets, partner, weight, status=None, slot=None, state=None):
+        self.offsets = np.ascontiguousarray(offsets, dtype=np.int64)
+        self.partner = np.ascontiguousarray(partner, dtype=np.int64)
+        self.weight = np.ascontiguousarray(weight, dtype=np.float64)
+        nb = len(self.partner)
+        self.status = (np.ones(nb, dtype=np.int8) if status is None
+                       else np.ascontiguousarray(status, dtype=np.int8))
+        self.slot = (np.full(nb, -1, dtype=np.int32) if slot is None
+                     else np.ascontiguousarray(slot, dtype=np.int32))
+        self.state: dict[str, np.ndarray] = {
+            k: np.ascontiguousarray(v, dtype=np.float64) for k, v in (state or {}).items()}
+        if self.offsets[-1] != nb or len(self.weight) != nb or len(self.status) != nb:
+            raise ValueError("bond arrays disagree with offsets")
+
+    # -- size ---------------------------------------------------------------------------------
+    @classmethod
+    def empty(cls, n: int = 0, state_names=()) -> "Bonds":
+        return cls(np.zeros(n + 1, np.int64), np.empty(0, np.int64), np.empty(0),
+                   state={k: np.empty(0) for k in state_names})
+
+    @property
+    def n(self) -> int:
+        return len(self.offsets) - 1
+
+    @property
+    def n_bonds(self) -> int:
+        return len(self.partner)
+
+    def counts(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+    def intact_counts(self) -> np.ndarray:
+        """Active half-bonds per particle (the load-balance weight of a PD particle)."""
+        return count_intact(self.offsets, self.status)
+
+    def resident_bytes_per_bond(self) -> int:
+        return (self.partner.itemsize + self.weight.itemsize + self.slot.itemsize
+                + self.status.itemsize + sum(a.itemsize for a in self.state.values()))
+
+    def nbytes(self) -> int:
+        return (self.offsets.nbytes + self.partner.nbytes + self.weight.nbytes
+                + self.slot.nbytes + self.status.nbytes
+                + sum(a.nbytes for a in self.state.values()))
+
+    def add_state(self, name: str, fill: float = 0.0) -> np.ndarray:
+        """Declare a per-bond float64 state array (idempotent); returns it."""
+        if name not in self.state:
+            self.state[name] = np.full(self.n_bonds, fill, dtype=np.float64)
+        return self.state[name]
+
+    # -- segments: migration, checkpoints, reordering, SPB conversion --------------------------
+    def _arrays(self) -> dict[str, np.ndarray]:
+        out = {"partner": self.partner, "weight": self.weight, "status": self.status,
+               "slot": self.slot}
+        out.update({"state." + k: v for k, v in self.state.items()})
+        return out
+
+    def extract(self, rows) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Copies of the segments of ``rows`` (integer indices), packed in that order:
+        (counts (len(rows),) int64, {name: concatenated array}). Slots are not carried: they
+        mean nothing on another rank or after a restart."""
+        rows = np.asarray(rows, dtype=np.int64)
+        index = segment_index(self.offsets, rows)
+        counts = self.offsets[rows + 1] - self.offsets[rows]
+        arrays = {k: v[index] for k, v in self._arrays().items() if k != "slot"}
+        return counts, arrays
+
+    def permute(self, order) -> None:
+        """Reorder (and possibly shrink to) ``order``: new row ``i`` is old row ``order[i]``,
+        following `ParticleSet.permute`."""
+        order = np.asarray(order, dtype=np.int64)
+        index = segment_index(self.offsets, order)
+        counts = self.offsets[order + 1] - self.offsets[order]
+        self.offsets = _offsets(counts)
+        for name, arr in self._arrays().items():
+            self._set(name, arr[index])
+
+    def keep(self, mask_or_index) -> None:
+        index = np.asarray(mask_or_index)
+        if index.dtype == bool:
+            index = np.flatnonzero(index)
+        self.permute(index)
+
+    def append(self, counts, arrays: dict[str, np.ndarray]) -> None:
+        """Append segments for new rows (arrivals by migration, particles read from a
+        checkpoint, MPM particles converted to PD): ``counts`` per new row and the
+        concatenated arrays as `extract` returns them. State arrays absent from ``arrays``
+        start at 0; slots start unresolved."""
+        counts = np.asarray(counts, dtype=np.int64)
+        m = int(counts.sum())
+        for name in CORE_BOND_FIELDS:
+            if len(arrays[name]) != m:
+                raise ValueError(f"{name}: {len(arrays[name])} entries for {m} bonds")
+        self.offsets = np.concatenate([self.offsets, self.offsets[-1] + np.cumsum(counts)])
+        for name, arr in self._arrays().items():
+            new = arrays.get(name)
+            if new is None:
+                new = np.full(m, -1 if name == "slot" else 0, dtype=arr.dtype)
+            self._set(name, np.concatenate([arr, np.asarray(new, dtype=arr.dtype)]))
+
+    def merge(self, rows, partner, weight, status=None) -> None:
+        """Add half-bonds to existing rows (a particle converted to PD next to existing PD
+        particles gives them new partners, issue 11): ``rows[k]`` gains the half-bond
+        ``partner[k]`` with ``weight[k]``; every segment stays ordered by partner id. State
+        arrays start at 0 and slots unresolved for the new half-bonds."""
+        rows = np.asarray(rows, dtype=np.int64)
+        partner = np.asarray(partner, dtype=np.int64)
+        m = len(rows)
+        if m == 0:
+            return
+        status = np.ones(m, np.int8) if status is None else np.asarray(status, np.int8)
+        owner = np.concatenate([np.repeat(np.arange(self.n), self.counts()), rows])
+        new = {"partner": partner, "weight": np.asarray(weight, np.float64), "status": status,
+               "slot": np.full(m, -1, np.int32)}
+        new.update({"state." + k: np.zeros(m) for k in self.state})
+        all_partner = np.concatenate([self.partner, partner])
+        order = np.lexsort((all_partner, owner))
+        if np.any((np.diff(owner[order]) == 0) & (np.diff(all_partner[order]) == 0)):
+            raise ValueError("merge would duplicate a bond")
+        for name, arr in self._arrays().items():
+            self._set(name, np.concatenate([arr, new[name].astype(arr.dtype)])[order])
+        self.offsets = _offsets(np.bincount(owner, minlength=self.n))
+
+    def _set(self, name: str, arr: np.ndarray) -> None:
+        if name.startswith("state."):
+            self.state[name[6:]] = np.ascontiguousarray(arr)
+        else:
+            setattr(self, name, np.ascontiguousarray(arr))
+
+    # -- halo ---------------------------------------------------------------------------------
+    def resolve_slots(self, ids: np.ndarray, x0: np.ndarray) -> int:
+        """Set each half-bond's local partner row from ``ids`` (global ids of the owned + halo
+        points, owned rows first, any order) and their reference positions ``x0``. A periodic
+        halo holds several images of one id: the image nearest in the reference configuration
+        is the partner (unique while the period exceeds twice the bond reach). Returns the
+        number of intact half-bonds whose partner is absent (slot -1): the halo is too small,
+        which the caller must treat as an error. Broken bonds may have absent partners."""
+        ids = np.ascontiguousarray(ids, dtype=np.int64)
+        order = np.argsort(ids, kind="stable")
+        return resolve_slots_kernel(self.offsets, self.partner, self.status, ids[order],
+                                    order.astype(np.int64), np.ascontiguousarray(x0),
+                                    self.slot)
+
+
+def _offsets(counts: np.ndarray) -> np.ndarray:
+    out = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=out[1:])
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def segment_index(offsets, rows):
+    """Half-bond indices of the segments of ``rows``, concatenated in that order."""
+    total = 0
+    for r in rows:
+        total += offsets[r + 1] - offsets[r]
+    out = np.empty(total, dtype=np.int64)
+    k = 0
+    for r in rows:
+        for b in range(offsets[r], offsets[r + 1]):
+            out[k] = b
+            k += 1
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def count_intact(offsets, status):
+    n = len(offsets) - 1
+    out = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        c = 0
+        for b in range(offsets[i], offsets[i + 1]):
+            c += status[b]
+        out[i] = c
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def resolve_slots_kernel(offsets, partner, status, sorted_ids, order, x0, slot):
+    """Binary search of each partner id in ``sorted_ids``; among equal ids (periodic images)
+    the one nearest to the bond's owner in ``x0``; writes ``slot``; returns the number of
+    intact half-bonds whose partner is missing."""
+    missing = 0
+    m = len(sorted_ids)
+    dim = x0.shape[1]
+    for i in range(len(offsets) - 1):
+        for b in range(offsets[i], offsets[i + 1]):
+            pid = partner[b]
+            lo, hi = 0, m
+            while lo < hi:
+                mid = (lo + hi) >> 1
+                if sorted_ids[mid] < pid:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            if lo < m and sorted_ids[lo] == pid:
+                best = order[lo]
+                if lo + 1 < m and sorted_ids[lo + 1] == pid:
+                    best_d2 = np.inf
+                    k = lo
+                    while k < m and sorted_ids[k] == pid:
+                        j = order[k]
+                        d2 = 0.0
+                        for a in range(dim):
+                            t = x0[j, a] - x0[i, a]
+                            d2 += t * t
+                        if d2 < best_d2:
+                            best_d2 = d2
+                            best = j
+                        k += 1
+                slot[b] = best
+            else:
+                slot[b] = -1
+                if status[b] != 0:
+                    missing += 1
+    return missing

@@ -1,0 +1,281 @@
+"""Non-ordinary state-based (correspondence) peridynamics: any continuum stress through F.
+
+003 eq. 4.4-4.7 with the issue's corrections. With w = omega beta (families.py), over intact
+bonds:
+
+    K_p = sum_q w X (x) X V_q                       (eq. 4.5, shape tensor)
+    F_p = (sum_q w Y (x) X V_q) K_p^-1              (eq. 4.4)
+    T_p<X> = w P_p K_p^-1 X,  P = J sigma F^-T = tau F^-T
+                                   (eq. 4.7 prints det F F^-1 sigma, which is P^T)
+    strain for output: eps = sym(F) - I             (eq. 4.6 as printed is not symmetric)
+
+and the force on p (003 eq. 4.1 times V_p): f_p = sum_q (T_p<X> - T_q<-X>) V_p V_q
+= sum_q w (A_p + A_q) X V_p V_q with A = P K^-1, plus Silling's (2017, J. Elasticity 127)
+zero-energy-mode control: a penalty on the non-affine part z = Y - F X of each bond,
+T^s_p<X> = G w z_p / |X| with G = `stabilization` * c (c: the PMB micromodulus of the same bulk
+modulus, so G = c is a PMB bond's stiffness), giving f_p += sum_q (G w/|X|)(z_p + z_q') V_p V_q
+with z_q' = Y - F_q X.
+
+Callback-free: `correspondence_kinematics` (failure, K, F) on owners -> the caller evaluates the
+Kirchhoff stress tau(F) with any material kernel -> `correspondence_force_state` (A = tau
+F^-T K^-1) on owners -> the caller refreshes A, F, ``active`` in the halo ->
+`correspondence_forces`. An attached particle with det F <= 0 gets A = NaN (the engine's health
+check reports it). A particle whose K is ill-conditioned (fewer than d independent
+intact bonds: det K < 1e-6 (tr K / d)^d) is detached: F = I, A = 0, active = 0; it carries no
+PD stress and no stabilization, and is never reported as an inverted element by itself.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .geometry import bond_vectors, norm3
+
+# det K below this fraction of (tr K / d)^d: the family does not span the space.
+DETACHED_RCOND = 1e-6
+
+
+@njit(cache=True, error_model="numpy")
+def _invert(M, out, dim):
+    """out = M^-1 for dim 2 or 3; returns det M."""
+    if dim == 2:
+        det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+        inv = 1.0 / det
+        out[0, 0] = M[1, 1] * inv
+        out[0, 1] = -M[0, 1] * inv
+        out[1, 0] = -M[1, 0] * inv
+        out[1, 1] = M[0, 0] * inv
+        return det
+    c00 = M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]
+    c01 = M[1, 2] * M[2, 0] - M[1, 0] * M[2, 2]
+    c02 = M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]
+    det = M[0, 0] * c00 + M[0, 1] * c01 + M[0, 2] * c02
+    inv = 1.0 / det
+    out[0, 0] = c00 * inv
+    out[1, 0] = c01 * inv
+    out[2, 0] = c02 * inv
+    out[0, 1] = (M[0, 2] * M[2, 1] - M[0, 1] * M[2, 2]) * inv
+    out[1, 1] = (M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]) * inv
+    out[2, 1] = (M[0, 1] * M[2, 0] - M[0, 0] * M[2, 1]) * inv
+    out[0, 2] = (M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1]) * inv
+    out[1, 2] = (M[0, 2] * M[1, 0] - M[0, 0] * M[1, 2]) * inv
+    out[2, 2] = (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]) * inv
+    return det
+
+
+@njit(cache=True, error_model="numpy")
+def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_owned,
+                              F, Kinv, active):
+    """Failure (stretch > s0 breaks), then K^-1 and F of the owned points (F, Kinv
+    (n, d, d), active (n,) 1.0/0.0). Returns the number of half-bonds broken."""
+    dim = x.shape[1]
+    K = np.empty((dim, dim))
+    N = np.empty((dim, dim))
+    Ki = np.empty((dim, dim))
+    Xv = np.empty(3)
+    Yv = np.empty(3)
+    broken = 0
+    for p in range(n_owned):
+        K[:, :] = 0.0
+        N[:, :] = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            q = slot[b]
+            if q < 0:               # partner beyond the halo reach (pmb.py)
+                status[b] = 0
+                broken += 1
+                continue
+            Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, q, dim)
+            xl = norm3(Xv[0], Xv[1], Xv[2])
+            if (norm3(Yv[0], Yv[1], Yv[2]) - xl) / xl > s0:
+                status[b] = 0
+                broken += 1
+                continue
+            wv = weight[b] * vol[q]
+            for i in range(dim):
+                for j in range(dim):
+                    K[i, j] += wv * Xv[i] * Xv[j]
+                    N[i, j] += wv * Yv[i] * Xv[j]
+        tr = 0.0
+        for i in range(dim):
+            tr += K[i, i]
+        det = _invert(K, Ki, dim)
+        if not (tr > 0.0 and det > DETACHED_RCOND * (tr / dim) ** dim):
+            active[p] = 0.0
+            for i in range(dim):
+                for j in range(dim):
+                    F[p, i, j] = 1.0 if i == j else 0.0
+                    Kinv[p, i, j] = 0.0
+            continue
+        active[p] = 1.0
+        for i in range(dim):
+            for j in range(dim):
+                Kinv[p, i, j] = Ki[i, j]
+                s = 0.0
+                for k in range(dim):
+                    s += N[i, k] * Ki[k, j]
+                F[p, i, j] = s
+    return broken
+
+
+@njit(cache=True, error_model="numpy")
+def correspondence_force_state(F, Kinv, tau, active, n_owned, A):
+    """A_p = P_p K_p^-1 with P = tau F^-T (first Piola-Kirchhoff from the Kirchhoff stress);
+    0 for detached points."""
+    dim = F.shape[1]
+    Fi = np.empty((dim, dim))
+    P = np.empty((dim, dim))
+    for p in range(n_owned):
+        if active[p] == 0.0:
+            A[p, :, :] = 0.0
+            continue
+        if not _invert(F[p], Fi, dim) > 0.0:
+            # An inverted PD family: NaN reaches the engine's health check.
+            A[p, :, :] = np.nan
+            continue
+        for i in range(dim):
+            for j in range(dim):
+                s = 0.0
+                for k in range(dim):
+                    s += tau[p, i, k] * Fi[j, k]     # (tau F^-T)_ij
+                P[i, j] = s
+        for i in range(dim):
+            for j in range(dim):
+                s = 0.0
+                for k in range(dim):
+                    s += P[i, k] * Kinv[p, k, j]
+                A[p, i, j] = s
+
+
+@njit(cache=True, error_model="numpy")
+def _pair_force(x, x0, vol, p, q, dim, w, A, F, active, G, Xv, Yv, out):
+    """out = force on p from the bond p-q (module docstring); symmetric factors only."""
+    Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, q, dim)
+    xl = norm3(Xv[0], Xv[1], Xv[2])
+    vv = vol[p] * vol[q]
+    gs = G * w / xl
+    ap = active[p]
+    aq = active[q]
+    for i in range(dim):
+        tp = 0.0
+        tq = 0.0
+        zp = Yv[i]
+        zq = Yv[i]
+        for j in range(dim):
+            tp += A[p, i, j] * Xv[j]
+            tq += A[q, i, j] * Xv[j]
+            zp -= F[p, i, j] * Xv[j]
+            zq -= F[q, i, j] * Xv[j]
+        out[i] = (w * (tp + tq) + gs * (ap * zp + aq * zq)) * vv
+
+
+@njit(cache=True, error_model="numpy")
+def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, active, G,
+                          n_owned, f):
+    """f_p = sum_q [w (A_p + A_q) X + (G w/|X|)(z_p + z_q)] V_p V_q over intact bonds; A, F,
+    active of owned + halo points."""
+    dim = x.shape[1]
+    Xv = np.empty(3)
+    Yv = np.empty(3)
+    fb = np.empty(3)
+    acc = np.empty(3)
+    for p in range(n_owned):
+        acc[:] = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            _pair_force(x, x0, vol, p, slot[b], dim, weight[b], A, F, active, G, Xv, Yv, fb)
+            for i in range(dim):
+                acc[i] += fb[i]
+        for i in range(dim):
+            f[p, i] = acc[i]
+
+
+@njit(cache=True, error_model="numpy")
+def correspondence_bond_forces(x, x0, vol, offsets, slot, status, weight, A, F, active, G,
+                               n_owned, out):
+    """The per-half-bond terms of `correspondence_forces`, out (nb, d) (verification)."""
+    dim = x.shape[1]
+    Xv = np.empty(3)
+    Yv = np.empty(3)
+    fb = np.empty(3)
+    for p in range(n_owned):
+        for b in range(offsets[p], offsets[p + 1]):
+            out[b, :] = 0.0
+            if status[b] == 0:
+                continue
+            _pair_force(x, x0, vol, p, slot[b], dim, weight[b], A, F, active, G, Xv, Yv, fb)
+            for i in range(dim):
+                out[b, i] = fb[i]
+
+
+class Correspondence:
+    """Correspondence model over a points view (integrator.PDPoints).
+
+    Parameters
+    ----------
+    dim : 2 or 3.
+    stress : callable(F (n, d, d), tau (n, d, d)) writing the Kirchhoff stress of a material
+        (e.g. a hpcmpm material's stress kernel with its moduli bound); the engine instead
+        calls `kinematics`, evaluates its material, then `set_stress`.
+    stabilization_modulus : G = stabilization * c.
+    critical_stretch : s0 (inf: no failure).
+    time_step_c : micromodulus of the PMB solid with the same P-wave modulus.
+    """
+
+    name = "correspondence"
+    persistent_fields: tuple[str, ...] = ()
+    halo_fields = ("A", "F", "active")
+
+    def __init__(self, dim: int, stress=None, stabilization_modulus: float = 0.0,
+                 critical_stretch: float = math.inf, time_step_c: float = 0.0):
+        self.dim = dim
+        self.stress = stress
+        self.G = float(stabilization_modulus)
+        self.s0 = float(critical_stretch)
+        self.c_dt = float(time_step_c)
+        self.F = np.empty((0, dim, dim))
+
+    def time_step_micromodulus(self) -> float:
+        return self.c_dt
+
+    def setup(self, pts) -> None:
+        self.resize(len(pts.x))
+
+    def resize(self, n: int) -> None:
+        """Scratch for n owned + halo points."""
+        if len(self.F) == n:
+            return
+        d = self.dim
+        self.F = np.zeros((n, d, d))
+        self.F[:] = np.eye(d)
+        self.Kinv = np.zeros((n, d, d))
+        self.A = np.zeros((n, d, d))
+        self.active = np.zeros(n)
+        self.tau = np.zeros((n, d, d))
+
+    def kinematics(self, pts) -> int:
+        b = pts.bonds
+        return correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                                         b.weight, self.s0, pts.n_owned, self.F, self.Kinv,
+                                         self.active)
+
+    def set_stress(self, tau, n_owned: int) -> None:
+        correspondence_force_state(self.F, self.Kinv, tau, self.active, n_owned, self.A)
+
+    def update_state(self, pts) -> int:
+        broken = self.kinematics(pts)
+        n = pts.n_owned
+        self.stress(self.F[:n], self.tau[:n])
+        self.set_stress(self.tau, n)
+        return broken
+
+    def forces(self, pts, f) -> int:
+        b = pts.bonds
+        correspondence_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                              self.A, self.F, self.active, self.G, pts.n_owned, f)
+        return 0

@@ -1,0 +1,310 @@
+"""The step extension of a peridynamic material (hpcmpm/materials/peridynamic.py).
+
+What the engine calls, and when (Simulation.add_extension; one extension per PD material):
+
+- ``integration = "pd"``: `PDBodyExtension.after_g2p(sim, dt)` after the materials' state
+  update, before migration: 003 Alg. 2 on the material's (off-grid) particles: failure,
+  theta or K/F and the stress, force eq. 4.1, v += dt (f/m + g), x += dt v, damage.
+- ``integration = "grid"``: `IntegralMPMExtension.particle_forces(sim, dt)` during P2G (the
+  force channel, phase "forces"): failure, state and bond forces at x^n, yielded as
+  (start, stop, f) for the material's rows; the grid scatters dt sum_p w_ip f_p (003 eq. 5.2
+  corrected).
+
+Both first bring the side structures up to date with the particle rows (every call, on every
+rank, collectively): bond rows follow the particle rows by id after the engine's sort,
+migration or rebalance (`redistribute_segments` fetches the segments of particles that
+changed rank); the PD halo plan is rebuilt when particles changed rank or one moved more than
+skin/2 since the last build, else only positions are refreshed. Bonds are made once, at the
+first call, in the reference configuration (x0 = x then; x0 is a particle field, NaN until
+set, so particles that become PD later get their x0 when they do).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SceneError
+from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
+from .bonds import Bonds
+from .contact import ParticleWalls
+from .families import find_families, half_bonds_per_particle
+from .geometry import damage, weighted_volume_sums
+from .integrator import PDPoints, bond_forces
+
+log = logging.getLogger(__name__)
+
+
+class PDExtension:
+    """The PD state of one material on one rank (module docstring); bonds checkpoint with
+    `CheckpointedBonds` (below)."""
+
+    def __init__(self, sim, material):
+        self.sim = sim
+        self.material = material
+        self.group = sim.materials.index(material)
+        self.model = material.make_model()
+        self.persistent = tuple(self.model.persistent_fields)
+        prm = material.params
+        self.radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
+            else material.delta
+        # s_reach = the critical stretch, or max_bond_stretch when smaller (the model's s0).
+        self.reach = self.radius * (1.0 + self.model.s0)
+        self.skin = prm["skin"] * material.spacing
+        self.halo: PDHalo | None = None       # made at the first step (the domain exists)
+        self.bonds = None
+        self.bond_ids = np.empty(0, np.int64)
+        self.pts: PDPoints | None = None
+        self.force = np.empty((0, sim.dim))
+        self.broken = 0
+        self._damage_at = 0
+        self.redistributions = 0
+
+    # -- keeping the side structures in step with the particles -------------------------------
+    def _rows(self):
+        start, stop = self.sim.group_slices[self.group]
+        return start, stop
+
+    def _static(self, start, stop) -> dict[str, np.ndarray]:
+        p = self.sim.particles
+        out = {"id": p["id"][start:stop], "x0": p["x0"][start:stop],
+               "vol0": p["vol0"][start:stop], "x": p["x"][start:stop]}
+        out.update({f"pd_{k}": p[f"pd_{k}"][start:stop] for k in self.persistent})
+        return out
+
+    def _rebuild(self, start, stop) -> None:
+        static = self._static(start, stop)
+        halo = self.halo.build(static["x"], static)
+        cat = lambda k: np.concatenate([static[k], halo[k]])  # noqa: E731
+        self.pts = PDPoints(cat("x0"), cat("x"), cat("vol0"), cat("id"), stop - start,
+                            self.bonds, {k: cat(f"pd_{k}") for k in self.persistent})
+        if self.bonds is not None:
+            self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
+        self.model.resize(len(self.pts.x))
+
+    def _check_memory(self, n: int) -> None:
+        """Refuse a horizon whose bonds would not fit: an estimate before allocating, from
+        an interior family's count (collective; the same SceneError on every rank)."""
+        per_particle = half_bonds_per_particle(
+            self.sim.dim, self.material.delta / self.material.spacing,
+            self.material.params["partial_volumes"])
+        need = n * per_particle * (Bonds.empty().resident_bytes_per_bond() + 4)
+        try:
+            memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (ValueError, OSError, AttributeError):
+            memory = math.inf
+        worst = self.sim.domain.max(float(need))
+        if worst > 0.5 * memory:
+            raise SceneError(
+                f"material {self.material.spec.name!r} (peridynamic): horizon: "
+                f"{per_particle} half-bonds per particle need about {worst / 2**30:.1f} GiB "
+                f"on one rank, more than half of its {memory / 2**30:.1f} GiB: lower the "
+                "horizon or use more ranks")
+
+    def _initialize(self, start, stop) -> None:
+        """Families in the reference configuration (collective)."""
+        self._check_memory(stop - start)
+        p = self.sim.particles
+        x0 = p["x0"][start:stop]
+        unset = np.isnan(x0[:, 0])
+        x0[unset] = p["x"][start:stop][unset]
+        self._rebuild(start, stop)
+        prm = self.material.params
+        family = find_families(self.pts.x0, self.pts.ids, stop - start, self.material.spacing,
+                               self.material.delta, influence=prm["influence"],
+                               partial_volumes=prm["partial_volumes"],
+                               precracks=prm["precracks"])
+        self.bonds = family.bonds
+        self.pts.bonds = self.bonds
+        self.bond_ids = p["id"][start:stop].copy()
+        self.model.setup(self.pts)
+        for k in self.persistent:
+            p[f"pd_{k}"][start:stop] = self.pts.fields[k][: stop - start]
+        weighted_volume_sums(self.pts.x0, self.pts.vol, self.bonds.offsets, self.bonds.slot,
+                             self.bonds.status, self.bonds.weight, stop - start,
+                             p["pd_wvol0"][start:stop])
+        lonely = self.sim.domain.sum(int(np.sum(self.bonds.counts() == 0)))
+        if lonely and self.sim.domain.rank == 0:
+            log.warning("material %r: %d peridynamic particle(s) have no bond (horizon "
+                        "%.3g, spacing %.3g)", self.material.spec.name, lonely,
+                        self.material.delta, self.material.spacing)
+        # The halo was built before the persistent fields existed: ship them now.
+        self._rebuild(start, stop)
+
+    def prepare(self) -> tuple[int, int]:
+        """Bond rows and halo in step with the particles; positions refreshed. Collective."""
+        start, stop = self._rows()
+        domain = self.sim.domain
+        if self.halo is None:
+            self.halo = PDHalo(domain, self.reach, self.skin)
+        if self.bonds is None:
+            self._initialize(start, stop)
+            return start, stop
+        if self.pts is None:         # bonds restored from a checkpoint
+            self._rebuild(start, stop)
+        ids = self.sim.particles["id"][start:stop]
+        moved = domain.any(not np.array_equal(ids, self.bond_ids))
+        if moved:
+            local = len(ids) == len(self.bond_ids) and \
+                np.array_equal(np.sort(ids), np.sort(self.bond_ids))
+            if domain.min(float(local)) > 0:     # only reordered (a sort): no exchange
+                align_rows(self.bonds, self.bond_ids, ids)
+            else:
+                redistribute_segments(domain, self.bonds, self.bond_ids, ids)
+                self.redistributions += 1
+            self.bond_ids = ids.copy()
+        x = self.sim.particles["x"][start:stop]
+        moved = self._follow_periodic_wrap(start, stop) or moved
+        # Rebuild after a reorder too: the halo plan's send lists name rows.
+        if moved or self.halo.stale(x):
+            self._rebuild(start, stop)
+        else:
+            n = stop - start
+            self.pts.x[:n] = x
+            self.halo.refresh({"x": x}, {"x": self.pts.x[n:]})
+        return start, stop
+
+    def _follow_periodic_wrap(self, start, stop) -> bool:
+        """Along periodic axes the engine wraps x into the domain; the reference position
+        follows by whole periods (x - x0 kept within half a period), so bond vectors X between
+        a particle and its partners' images stay those of the reference configuration.
+        Returns whether any rank shifted one (a halo rebuild; collective)."""
+        domain = self.sim.domain
+        periodic = np.asarray(getattr(domain, "periodic", np.zeros(self.sim.dim, bool)))
+        if not periodic.any():
+            return False
+        p = self.sim.particles
+        length = np.where(periodic, domain.n_cells * domain.dx, 0.0)
+        axes = np.flatnonzero(periodic)
+        x, x0 = p["x"][start:stop], p["x0"][start:stop]
+        turns = np.round((x[:, axes] - x0[:, axes]) / length[axes])
+        changed = bool(np.any(turns != 0))
+        if changed:
+            x0[:, axes] += turns * length[axes]
+        return domain.any(changed)
+
+    def compute_forces(self, start, stop) -> np.ndarray:
+        """Failure, state (with the state halo) and bond forces of the rows [start, stop)."""
+        n = stop - start
+        if len(self.force) != n:
+            self.force = np.empty((n, self.sim.dim))
+        self.broken += bond_forces(self.model, self.pts, self.force, self.halo.refresh_rows(n))
+        return self.force
+
+    def write_damage(self, start, stop) -> None:
+        """phi (003 eq. 4.8) of the rows; only when bonds broke since the last call (the
+        rows' values otherwise stand, whatever the reordering, since they move with their
+        particles)."""
+        if self.broken == self._damage_at:
+            return
+        self._damage_at = self.broken
+        p, b = self.sim.particles, self.bonds
+        damage(self.pts.vol, b.offsets, b.slot, b.status, b.weight, p["pd_wvol0"][start:stop],
+               stop - start, p["damage"][start:stop])
+
+
+class _HalfBondRows:
+    """Half-bonds as rows for `hpcmpm.io.checkpoint.write_checkpoint` (its particle-set
+    interface): owner id, partner id, weight, status and the per-bond state."""
+
+    def __init__(self, dim: int, arrays: dict[str, np.ndarray]):
+        self.dim = dim
+        self.arrays = arrays
+        self.n = len(arrays["owner"])
+
+    def field_names(self) -> list[str]:
+        return list(self.arrays)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+
+def bonds_folder(out_dir, material_name: str) -> Path:
+    """Where a PD material's bonds are checkpointed, beside the particle checkpoints."""
+    return Path(out_dir) / f"pd_bonds_{material_name}"
+
+
+class CheckpointedBonds:
+    """Bonds in checkpoints (mixin of PDExtension): ``pd_bonds_<material>/ckpt_<step>.h5``
+    beside the particle checkpoint, written before it (a particle checkpoint that exists has
+    its bonds), read back on any rank count and routed to the particles' new owners."""
+
+    def write_checkpoint(self, out_dir, step: int, keep: int) -> None:
+        from ..io.checkpoint import write_checkpoint
+
+        b = self.bonds if self.bonds is not None else Bonds.empty(0)
+        arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
+                  "weight": b.weight, "status": b.status,
+                  **{f"state.{k}": v for k, v in b.state.items()}}
+        meta = {"step": int(step), "time": float(self.sim.time),
+                "initialized": self.bonds is not None}
+        write_checkpoint(bonds_folder(out_dir, self.material.spec.name), self.sim.domain,
+                         _HalfBondRows(self.sim.dim, arrays), meta, keep=keep)
+
+    def restore(self, particle_checkpoint) -> None:
+        """Bonds of the particle checkpoint at this path (collective); the first step then
+        builds the halo instead of new families."""
+        from ..io.checkpoint import read_checkpoint
+        from ..parallel.pd_halo import route_half_bonds
+
+        path = Path(particle_checkpoint)
+        rows, meta = read_checkpoint(bonds_folder(path.parent, self.material.spec.name)
+                                     / path.name, self.sim.domain)
+        if not meta.get("initialized", False):
+            return
+        p = self.sim.particles
+        # Rows of this material in their current order, without sorting (a sort now would
+        # change a grid scene's summation order against the uninterrupted run).
+        ids = p["id"][p["group"] == self.group].copy()
+        rows = route_half_bonds(self.sim.domain, rows, ids)
+        row_of = {int(i): k for k, i in enumerate(ids)}
+        owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
+        order = np.lexsort((rows["partner"], owner_row))
+        offsets = np.zeros(len(ids) + 1, np.int64)
+        np.cumsum(np.bincount(owner_row, minlength=len(ids)), out=offsets[1:])
+        self.bonds = Bonds(offsets, rows["partner"][order], rows["weight"][order],
+                           rows["status"][order],
+                           state={k[6:]: v[order] for k, v in rows.items()
+                                  if k.startswith("state.")})
+        self.bond_ids = ids
+        self.pts = None
+
+
+class PDBodyExtension(CheckpointedBonds, PDExtension):
+    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles; the
+    domain walls act per particle (pd/contact.py; analytic colliders do not, yet)."""
+
+    def __init__(self, sim, material):
+        super().__init__(sim, material)
+        self.walls = ParticleWalls(sim.scene)
+
+    def after_g2p(self, sim, dt: float) -> None:
+        with sim.phase("pd"):
+            start, stop = self.prepare()
+            f = self.compute_forces(start, stop)
+            p = sim.particles
+            v = p["v"][start:stop]
+            x = p["x"][start:stop]
+            v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
+            self.walls.apply(x, v, dt)
+            x += dt * v
+            self.write_damage(start, stop)
+
+
+class IntegralMPMExtension(CheckpointedBonds, PDExtension):
+    """``integration = "grid"``: bond forces through the force channel (003 eq. 5.2)."""
+
+    def particle_forces(self, sim, dt: float):
+        start, stop = self.prepare()
+        f = self.compute_forces(start, stop)
+        self.write_damage(start, stop)
+        yield start, stop, f
+
+
+def make_extension(sim, material) -> PDExtension:
+    cls = IntegralMPMExtension if material.on_grid else PDBodyExtension
+    return cls(sim, material)

@@ -1,0 +1,88 @@
+"""Bond CSR side structure: segments move with their particles, slots resolve through ids."""
+
+import numpy as np
+
+from hpcmpm.pd.bonds import Bonds
+
+
+def small_bonds():
+    # Three particles with 2, 0, 3 half-bonds; partner ids ascending per segment.
+    offsets = np.array([0, 2, 2, 5])
+    partner = np.array([11, 12, 10, 11, 13])
+    weight = np.array([0.5, 1.0, 0.25, 0.75, 1.0])
+    status = np.array([1, 0, 1, 1, 1], dtype=np.int8)
+    b = Bonds(offsets, partner, weight, status)
+    b.add_state("plastic_stretch")[:] = [1.0, 2.0, 3.0, 4.0, 5.0]
+    return b
+
+
+def segment(b, i):
+    s = slice(b.offsets[i], b.offsets[i + 1])
+    return b.partner[s].tolist(), b.weight[s].tolist(), b.status[s].tolist(), \
+        b.state["plastic_stretch"][s].tolist()
+
+
+def test_resident_bytes_per_half_bond():
+    b = small_bonds()
+    # partner i8 + weight f8 + slot i4 + status i1 = 21 B, + 8 B per per-bond state array.
+    assert b.resident_bytes_per_bond() == 21 + 8
+    assert Bonds.empty(3).resident_bytes_per_bond() == 21
+
+
+def test_permute_keeps_each_particles_segment():
+    b = small_bonds()
+    before = [segment(b, i) for i in range(3)]
+    b.permute([2, 0, 1])
+    assert [segment(b, i) for i in range(3)] == [before[2], before[0], before[1]]
+    b.keep(np.array([True, False, True]))
+    assert [segment(b, i) for i in range(2)] == [before[2], before[1]]
+
+
+def test_extract_append_round_trip_as_migration():
+    b = small_bonds()
+    before = [segment(b, i) for i in range(3)]
+    counts, arrays = b.extract([2, 0])
+    assert counts.tolist() == [3, 2]
+    b.keep([1])                       # the two leave ...
+    b.append(counts, arrays)          # ... and arrive elsewhere (here: back)
+    assert [segment(b, i) for i in range(3)] == [before[1], before[2], before[0]]
+    assert np.all(b.slot == -1)       # slots mean nothing after a move
+
+
+def test_append_new_segments_starts_state_at_zero():
+    b = small_bonds()
+    b.append([1], {"partner": np.array([7]), "weight": np.array([1.0]),
+                   "status": np.array([1], np.int8)})
+    assert segment(b, 3) == ([7], [1.0], [1], [0.0])
+
+
+def test_resolve_slots_finds_rows_and_nearest_periodic_image():
+    b = small_bonds()
+    # Points: owned rows 0..2 (ids 10, 11, 12), halo: id 13 and two images of id 10.
+    ids = np.array([10, 11, 12, 13, 10, 10])
+    x0 = np.array([[0.0], [1.0], [2.0], [3.0], [10.0], [-10.0]])
+    x0 = np.hstack([x0, np.zeros_like(x0)])
+    missing = b.resolve_slots(ids, x0)
+    assert missing == 0
+    # particle 2 (x0 = 2) reaches id 10 at row 0 (x0 = 0), not the images at +-10.
+    assert b.slot.tolist() == [1, 2, 0, 1, 3]
+    # Without id 12 in the halo: the bond to it is broken, so it may be absent.
+    assert b.resolve_slots(np.array([10, 11, 13]), x0[[0, 1, 3]]) == 0
+    b.status[:] = 1
+    assert b.resolve_slots(np.array([10, 11, 13]), x0[[0, 1, 3]]) == 1
+
+
+def test_intact_counts():
+    assert small_bonds().intact_counts().tolist() == [1, 0, 3]
+
+
+def test_merge_keeps_segments_ordered_by_partner_id():
+    b = small_bonds()
+    b.merge([0, 2, 1], [5, 12, 20], [0.1, 0.2, 0.3])
+    assert segment(b, 0) == ([5, 11, 12], [0.1, 0.5, 1.0], [1, 1, 0], [0.0, 1.0, 2.0])
+    assert segment(b, 1) == ([20], [0.3], [1], [0.0])
+    assert segment(b, 2) == ([10, 11, 12, 13], [0.25, 0.75, 0.2, 1.0], [1, 1, 1, 1],
+                             [3.0, 4.0, 0.0, 5.0])
+    import pytest
+    with pytest.raises(ValueError, match="duplicate"):
+        b.merge([0], [11], [1.0])

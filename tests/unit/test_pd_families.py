@@ -1,0 +1,171 @@
+"""Families: the cell-list search against a brute-force search written here, pre-cracks,
+periodic images, influence moments and the PMB constants against the issue's closed forms."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hpcmpm.pd import moduli
+from hpcmpm.pd.families import find_families, influence_moment
+
+
+def brute_force(x0, ids, delta, dx, influence, cut=None):
+    """Every pair within delta + dx/2, weights omega * beta written out independently."""
+    out = {}
+    for i in range(len(x0)):
+        for j in range(len(x0)):
+            r = float(np.linalg.norm(x0[j] - x0[i]))
+            if i == j or r >= delta + 0.5 * dx:
+                continue
+            if cut is not None and cut(x0[i], x0[j]):
+                continue
+            beta = min(1.0, (delta + 0.5 * dx - r) / dx)
+            omega = {"constant": 1.0, "inverse": delta / r,
+                     "conical": max(0.0, 1.0 - r / delta),
+                     "gaussian": math.exp(-(r / delta) ** 2)}[influence]
+            if omega * beta > 0:
+                out.setdefault(int(ids[i]), []).append((int(ids[j]), omega * beta))
+    return {k: sorted(v) for k, v in out.items()}
+
+
+def as_dict(fam, ids):
+    b = fam.bonds
+    out = {}
+    for i in range(b.n):
+        s = slice(b.offsets[i], b.offsets[i + 1])
+        if b.offsets[i + 1] > b.offsets[i]:
+            out[int(ids[i])] = list(zip(b.partner[s].tolist(), b.weight[s].tolist()))
+    return out
+
+
+def jittered(dim, n, seed):
+    rng = np.random.default_rng(seed)
+    g = np.stack(np.meshgrid(*[np.arange(n)] * dim, indexing="ij"), -1).reshape(-1, dim)
+    return g + rng.uniform(-0.3, 0.3, g.shape), rng.permutation(len(g)).astype(np.int64) * 7
+
+
+@pytest.mark.parametrize("dim,influence", [(2, "constant"), (2, "conical"), (3, "inverse"),
+                                           (3, "gaussian")])
+def test_cell_list_equals_brute_force(dim, influence):
+    x0, ids = jittered(dim, 9 if dim == 2 else 6, seed=dim)
+    fam = find_families(x0, ids, len(x0), 1.0, 2.2, influence=influence)
+    got = as_dict(fam, ids)
+    want = brute_force(x0, ids, 2.2, 1.0, influence)
+    assert got.keys() == want.keys()
+    for k in want:
+        # Partners ordered by id; weights from the same formula: equal to round-off. beta =
+        # (delta + dx/2 - r)/dx cancels for partners near the edge, so the error is absolute:
+        # a few ulp of (delta + dx/2)/dx ~ 3 -> 1e-14.
+        assert [p for p, _ in got[k]] == [p for p, _ in want[k]]
+        np.testing.assert_allclose([w for _, w in got[k]], [w for _, w in want[k]],
+                                   rtol=1e-14, atol=1e-14)
+    # slots point at the partner's row
+    b = fam.bonds
+    assert np.array_equal(ids[b.slot], b.partner)
+
+
+def test_partial_volumes_off_truncates_at_delta():
+    x0, ids = jittered(2, 8, seed=5)
+    fam = find_families(x0, ids, len(x0), 1.0, 2.2, partial_volumes=False)
+    b = fam.bonds
+    r = np.linalg.norm(x0[b.slot] - np.repeat(x0, b.counts(), axis=0), axis=1)
+    assert r.max() <= 2.2 and np.all(b.weight == 1.0)
+    assert b.n_bonds == sum(
+        1 for i in range(len(x0)) for j in range(len(x0))
+        if i != j and np.linalg.norm(x0[i] - x0[j]) <= 2.2)
+
+
+def test_precrack_segment_2d():
+    x0, ids = jittered(2, 10, seed=3)
+    crack = np.array([[[4.5, -1.0], [4.5, 5.2]]])
+
+    def cut(p, q):
+        # The bond crosses x = 4.5 at a height within the crack's extent.
+        if (p[0] - 4.5) * (q[0] - 4.5) >= 0:
+            return False
+        y = p[1] + (4.5 - p[0]) * (q[1] - p[1]) / (q[0] - p[0])
+        return -1.0 <= y <= 5.2
+
+    fam = find_families(x0, ids, len(x0), 1.0, 3.015, precracks=crack)
+    assert as_dict(fam, ids).keys() == brute_force(x0, ids, 3.015, 1.0, "constant", cut).keys()
+    got, want = as_dict(fam, ids), brute_force(x0, ids, 3.015, 1.0, "constant", cut)
+    assert all([p for p, _ in got[k]] == [p for p, _ in want[k]] for k in want)
+
+
+def test_precrack_polygon_3d():
+    x0, ids = jittered(3, 7, seed=4)
+    # A triangle in the plane z = 3.1 covering x + y < 6 (x, y >= -1).
+    tri = [np.array([[-1.0, -1.0, 3.1], [8.0, -1.0, 3.1], [-1.0, 8.0, 3.1]])]
+
+    def cut(p, q):
+        if (p[2] - 3.1) * (q[2] - 3.1) >= 0:
+            return False
+        t = (3.1 - p[2]) / (q[2] - p[2])
+        h = p + t * (q - p)
+        return h[0] > -1 and h[1] > -1 and h[0] + h[1] < 7.0
+
+    fam = find_families(x0, ids, len(x0), 1.0, 2.0, precracks=tri)
+    got, want = as_dict(fam, ids), brute_force(x0, ids, 2.0, 1.0, "constant", cut)
+    assert got.keys() == want.keys()
+    assert all([p for p, _ in got[k]] == [p for p, _ in want[k]] for k in want)
+
+
+def test_periodic_images_reach_across_the_box():
+    # A chain of 10 points, period 10: every point has the same family (2 per side in
+    # delta + dx/2 = 2.5, partners wrapped by id).
+    x0 = np.zeros((10, 3))
+    x0[:, 0] = np.arange(10) + 0.5
+    ids = np.arange(10)
+    fam = find_families(x0, ids, 10, 1.0, 2.0, period=[10.0, 0, 0])
+    b = fam.bonds
+    assert b.counts().tolist() == [4] * 10
+    assert sorted(b.partner[b.offsets[0]:b.offsets[1]].tolist()) == [1, 2, 8, 9]
+    x_all = np.concatenate([x0, x0[fam.image_source] + fam.image_shift])
+    r = np.linalg.norm(x_all[b.slot] - np.repeat(x0, 4, axis=0), axis=1)
+    assert np.allclose(np.sort(r.reshape(10, 4), axis=1), [1, 1, 2, 2])
+    with pytest.raises(ValueError, match="period"):
+        find_families(x0, ids, 10, 1.0, 4.6, period=[10.0, 0, 0])
+
+
+@pytest.mark.parametrize("name", ["constant", "inverse", "conical", "gaussian"])
+def test_influence_moments_match_quadrature(name):
+    delta = 1.7
+    r = (np.arange(200000) + 0.5) * delta / 200000   # midpoint rule, error ~1e-11 here
+    omega = {"constant": np.ones_like(r), "inverse": delta / r, "conical": 1 - r / delta,
+             "gaussian": np.exp(-(r / delta) ** 2)}[name]
+    for k in (2, 3, 4):
+        assert influence_moment(name, k, delta) == pytest.approx(
+            np.sum(omega * r ** k) * delta / 200000, rel=1e-9)
+
+
+def test_pmb_constants_equal_the_issue_closed_forms():
+    E, delta, h, G0 = 3.0e9, 0.003, 0.01, 120.0
+    K = E / (3 * (1 - 2 * 0.25))
+    assert moduli.pmb_micromodulus_from_E(3, E, 0.25, delta) == pytest.approx(
+        18 * K / (math.pi * delta ** 4), rel=1e-14)
+    assert moduli.pmb_micromodulus_from_E(2, E, 1 / 3, delta, "stress", thickness=h) == \
+        pytest.approx(9 * E / (math.pi * h * delta ** 3), rel=1e-14)
+    assert moduli.pmb_micromodulus_from_E(2, E, 0.25, delta, "strain", thickness=h) == \
+        pytest.approx(48 * E / (5 * math.pi * h * delta ** 3), rel=1e-14)
+    for dim, nu, plane in ((3, 0.25, "strain"), (2, 1 / 3, "stress"), (2, 0.25, "strain")):
+        c = moduli.pmb_micromodulus_from_E(dim, E, nu, delta, plane, thickness=h)
+        assert moduli.critical_stretch(dim, G0, c, delta, thickness=h) == pytest.approx(
+            moduli.critical_stretch_from_moduli(dim, G0, E, nu, delta, plane), rel=1e-14)
+    with pytest.raises(ValueError, match=r"nu = 0\.333333"):
+        moduli.pmb_micromodulus_from_E(2, E, 0.3, delta, "stress")
+    with pytest.raises(ValueError, match=r"nu = 0\.25, got 0\.3"):
+        moduli.pmb_micromodulus_from_E(3, E, 0.3, delta)
+    with pytest.raises(ValueError, match="fracture_energy"):
+        moduli.critical_stretch(3, 0.0, 1.0, delta)
+    with pytest.raises(ValueError, match="below one particle spacing"):
+        find_families(np.zeros((2, 2)), np.arange(2), 2, 1.0, 0.5)
+
+
+def test_half_bond_estimate_matches_an_interior_family():
+    from hpcmpm.pd.families import half_bonds_per_particle
+    for dim, pv in ((2, True), (3, True), (3, False)):
+        x0 = np.stack(np.meshgrid(*[np.arange(9.0)] * dim, indexing="ij"), -1).reshape(-1, dim)
+        fam = find_families(x0, np.arange(len(x0)), len(x0), 1.0, 3.015, partial_volumes=pv)
+        centre = int(np.argmin(np.linalg.norm(x0 - 4.0, axis=1)))
+        assert half_bonds_per_particle(dim, 3.015, pv) == fam.bonds.counts()[centre]
