@@ -482,20 +482,31 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
 
 
 def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
-                         transfer, prescribed, integrator) -> None:
+                         transfer, prescribed, integrator, dim) -> None:
     """Each requested field must exist in this scene's particles (the writer would skip it
     silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
     what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
-    from .materials import MATERIALS
+    from .materials import make_material
     from .simulation import deformation_mode, particle_field_specs
     from .solvers import INTEGRATORS
     from .state import CORE_FIELDS
 
-    if transfer is None or integrator is None or not materials_complete:
+    if transfer is None or integrator is None or not materials_complete or not dim:
         return  # a bad material or transfer is reported already; the list would mislead
-    classes = [MATERIALS[m.type] for m in materials]
-    mode = deformation_mode(classes, INTEGRATORS[integrator].needs_velocity_gradient)
-    valid = list(CORE_FIELDS) + list(particle_field_specs(classes, mode, transfer,
+    # Instances, as the run makes them: a material may declare fields by its parameters (J2:
+    # s_zz in 2D only, T with a specific heat); a parameter combination its constructor
+    # refuses is reported here, in the scene's format.
+    instances = []
+    for i, m in enumerate(materials):
+        try:
+            instances.append(make_material(m, dim))
+        except SceneError as exc:
+            for problem in exc.problems:
+                c.problem(f"materials[{i}]", problem)
+    if len(instances) < len(materials):
+        return
+    mode = deformation_mode(instances, INTEGRATORS[integrator].needs_velocity_gradient)
+    valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, transfer,
                                                           bool(prescribed))) + ["tau"]
     for i, name in enumerate(output.fields):
         if name not in valid:
@@ -812,7 +823,7 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     entries = raw.get("materials")
     _check_output_fields(c, output, materials,
                          isinstance(entries, list) and len(entries) == len(materials),
-                         sim["transfer"], prescribed, sim["integrator"])
+                         sim["transfer"], prescribed, sim["integrator"], sim["dim"])
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)

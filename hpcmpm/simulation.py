@@ -13,7 +13,7 @@ import logging
 import numpy as np
 
 from .boundaries import build_boundaries, build_prescribed
-from .errors import InstabilityError
+from .errors import InstabilityError, SceneError
 from .kernels.grid import update_velocity
 from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
@@ -49,6 +49,22 @@ def deformation_fields(materials, mode: str) -> dict[str, FieldSpec]:
         if any(m.deformation == kind for m in materials):
             specs[kind] = DEFORMATION_FIELDS[kind]
     return specs
+
+
+def configured_materials(scene, dim: int) -> list[Material]:
+    """The scene's materials, made and configured against the scene; a problem only the whole
+    scene shows (a horizon below the spacing, a material named by another that is not there)
+    is a `SceneError` in the scene's format: ``{file}: materials[i]: ...``."""
+    materials = []
+    for i, spec in enumerate(scene.materials):
+        try:
+            material = make_material(spec, dim)
+            material.configure(scene)
+        except SceneError as exc:
+            raise SceneError([f"{scene.path}: materials[{i}]: {p}" for p in exc.problems]) \
+                from None
+        materials.append(material)
+    return materials
 
 
 def particle_field_specs(materials, mode: str, transfer: str,
@@ -99,9 +115,7 @@ class Simulation:
         self._static_split = static(self.split_force)
         self.gravity = np.zeros(3)
         self.gravity[: self.dim] = scene.gravity
-        self.materials = [make_material(spec, self.dim) for spec in scene.materials]
-        for material in self.materials:
-            material.configure(scene)
+        self.materials = configured_materials(scene, self.dim)
         self.integrator = make_integrator(getattr(scene, "integrator", "explicit"), self)
         # F, J alone, or the velocity gradient L (`deformation_mode`).
         self.deformation = deformation_mode(self.materials,

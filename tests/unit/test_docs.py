@@ -10,14 +10,16 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-NUMBERS = {2: "two", 3: "three", 4: "four", 5: "five", 6: "six", 7: "seven", 8: "eight",
-           9: "nine", 10: "ten"}
+NUMBERS = dict(enumerate("zero one two three four five six seven eight nine ten eleven twelve "
+                         "thirteen fourteen fifteen sixteen seventeen eighteen nineteen "
+                         "twenty".split()))
 
 
 def exit_codes() -> set[int]:
     import hpcmpm.io.info
     import hpcmpm.jobs
     import hpcmpm.runner  # noqa: F401 - defines CheckpointedOnSignal
+    import hpcmpm.viz.series  # noqa: F401 - defines RenderError
     from hpcmpm.errors import HpcmpmError
 
     found, todo = set(), [HpcmpmError]
