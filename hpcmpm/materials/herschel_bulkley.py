@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 from .base import Param
-from .left_cauchy_green import ELASTIC_KEYS, HB, LeftCauchyGreenMaterial
+from .left_cauchy_green import ELASTIC_KEYS, FLOW_UPDATE, HB, LeftCauchyGreenMaterial
 
 YIELD_STRAIN = Param(0.0, math.inf, low_inclusive=True,
                      doc="yield strain sigma_Y: flow when |dev b_E| > sigma_Y (dimensionless)")
@@ -35,6 +35,7 @@ class HerschelBulkley(LeftCauchyGreenMaterial):
 
     name = "herschel_bulkley"
     mode = HB
+    explicit_mode = HB
     rescale_state = True
     parameters = {
         **ELASTIC_KEYS,
@@ -43,6 +44,7 @@ class HerschelBulkley(LeftCauchyGreenMaterial):
                             doc="flow index h: 1 Bingham, < 1 shear thinning, > 1 thickening"),
         "flow_consistency": Param(0.0, math.inf,
                                   doc="flow consistency eta (units time^h)"),
+        "flow_update": FLOW_UPDATE,
     }
 
     def __init__(self, spec, dim: int):
@@ -50,6 +52,11 @@ class HerschelBulkley(LeftCauchyGreenMaterial):
         self.sigma_y = self.params["yield_strain"]
         self.inv_h = 1.0 / self.params["flow_index"]
         self.eta = self.params["flow_consistency"]
+        self._init_flow_update()
+
+    def scene_problems(self, scene) -> list[str]:
+        """The flow update against the integrator and dimension (`flow_update_problems`)."""
+        return self.flow_update_problems(scene)
 
     def flow_curve(self, shear_rate: float) -> float:
         """Steady simple-shear stress tau_y + K gdot^h of the elastic part (small strain)."""

@@ -66,11 +66,14 @@ from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
 from ..errors import SceneError
-from .base import POISSON, YOUNG, Material, Param, check_params, lame
+from .base import POISSON, YOUNG, Material, Param, check_params, choice, lame
+from . import isochoric_return as implicit_return
 from .matrix import (EYE, add, add_identity, axpy, ddot, det, dim_of, inverse, load, mul,
                      mul_bt, root_d, scale, store, sub, sym, trace, transpose)
 
 OB_EXPLICIT, OB_SPD, FE, FE_BDF2, HB, VM = 0, 1, 2, 3, 4, 5
+# Implicit isochoric return (isochoric_return.py): Herschel-Bulkley, and von Mises with eta = 0.
+HB_IMPLICIT = 6
 PLASTICITY_MODES = {"ob_spd": OB_SPD, "ob_explicit": OB_EXPLICIT, "fe": FE, "fe_bdf2": FE_BDF2}
 
 # Keys every b_E model accepts: the moduli as (mu, lambda) or (E, nu), and the viscosity.
@@ -86,6 +89,16 @@ ELASTIC_KEYS = {
                        doc="Newtonian viscosity mu_N (dynamic: stress x time); "
                            "sigma_N = 2 mu_N sym(grad v)"),
 }
+
+# The viscoplastic models' (HB, von Mises) plastic update: "implicit" the variational return of
+# isochoric_return.py (force = stress of the returned state, consistent tangent; 2D),
+# "explicit" the issue's b_hat with the flow evaluated at t^n, "auto" implicit under the
+# semi-implicit integrator in 2D and explicit otherwise (the explicit integrator's verified
+# results keep their update).
+FLOW_UPDATE = choice(("auto", "implicit", "explicit"), "auto",
+                     doc="plastic update: implicit (end-of-step return, variational, 2D), "
+                         "explicit (000 §4.6.2 with the flow at t^n), auto (implicit for the "
+                         "semi-implicit integrator in 2D, else explicit)")
 
 
 # -- per-particle pieces ---------------------------------------------------------------------
@@ -253,6 +266,9 @@ def update_state(eye, mode, b, J, Fe, Fe_prev, Lv, dt, inv_wi, sigma_y, inv_h, e
                 if mode == FE_BDF2:
                     store(Fe_prev, p, f)
                 store(Fe, p, fnew)
+        elif mode == HB_IMPLICIT:  # b_E with det J^2 already: the rescale is round-off
+            bh, Jnew, _, _, _ = implicit_return.returned(bn, L, dt, J[p], sigma_y, 1.0 / inv_h,
+                                                          eta)
         else:
             S, R, B = plastic_factors(mode, bn, bn, bn, dt, inv_wi, sigma_y, inv_h, eta)
             bh = b_hat(S, R, B, L, dt)
@@ -310,9 +326,13 @@ def implicit_energy(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, i
     total = 0.0
     for p in range(b.shape[0]):
         L = load(Lv, p, eye)
-        S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye), load(Fe_prev, p, eye),
-                                  dt, inv_wi, sigma_y, inv_h, eta)
-        e = psi(b_hat(S, R, B, L, dt), J[p] * det(axpy(dt, L, eye)), mu, lam)
+        if mode == HB_IMPLICIT:
+            e = implicit_return.energy_density(load(b, p, eye), L, dt, J[p], mu, lam, sigma_y,
+                                               1.0 / inv_h, eta)
+        else:
+            S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
+                                      load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
+            e = psi(b_hat(S, R, B, L, dt), J[p] * det(axpy(dt, L, eye)), mu, lam)
         if e == math.inf:
             return math.inf
         eps = sym(L)
@@ -328,9 +348,13 @@ def implicit_gradient(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n,
     bad = 0
     for p in range(b.shape[0]):
         L = load(Lv, p, eye)
-        S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye), load(Fe_prev, p, eye),
-                                  dt, inv_wi, sigma_y, inv_h, eta)
-        g, ok = _gradient_point(S, R, B, L, dt, J[p], mu, lam)
+        if mode == HB_IMPLICIT:
+            g, ok = implicit_return.gradient_point(load(b, p, eye), L, dt, J[p], mu, lam,
+                                                   sigma_y, 1.0 / inv_h, eta)
+        else:
+            S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
+                                      load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
+            g, ok = _gradient_point(S, R, B, L, dt, J[p], mu, lam)
         if not ok:
             bad += 1
             g = scale(math.nan, g)
@@ -346,11 +370,15 @@ def implicit_hessian(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, 
     for p in range(b.shape[0]):
         L = load(Lv, p, eye)
         D = load(dLv, p, eye)
-        S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye), load(Fe_prev, p, eye),
-                                  dt, inv_wi, sigma_y, inv_h, eta)
+        if mode == HB_IMPLICIT:
+            hD = implicit_return.hessian_point(load(b, p, eye), L, D, dt, J[p], mu, lam, sigma_y,
+                                               1.0 / inv_h, eta)
+        else:
+            S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
+                                      load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
+            hD = _hessian_point(S, R, B, L, D, dt, J[p], mu, lam)
         w = dt * vol0[p]
-        store(dG, p, axpy(2.0 * mu_n * J[p] * w, sym(D),
-                          scale(w, _hessian_point(S, R, B, L, D, dt, J[p], mu, lam))))
+        store(dG, p, axpy(2.0 * mu_n * J[p] * w, sym(D), scale(w, hD)))
 
 
 # -- the material classes' common part -------------------------------------------------------
@@ -404,6 +432,30 @@ class LeftCauchyGreenMaterial(Material):
                 problems.append("lambda: mu and lambda are both 0: the material resists nothing")
         return problems
 
+    # -- the viscoplastic update (HB, von Mises) ---------------------------------------------
+    explicit_mode: ClassVar[int] = OB_SPD
+
+    def _init_flow_update(self) -> None:
+        """Reads ``flow_update``; "auto" starts explicit and `configure` decides."""
+        self.flow_update = self.params["flow_update"]
+        if self.flow_update == "implicit" and self.dim != 2:
+            raise SceneError([f"material {self.spec.name!r} ({self.name}): flow_update: "
+                              f"'implicit' is built for 2D only (the 3D return needs the "
+                              f"principal log strains); use 'explicit' or 'auto'"])
+        self._set_flow_update(self.flow_update == "implicit")
+
+    def _set_flow_update(self, implicit: bool) -> None:
+        self.mode = HB_IMPLICIT if implicit else self.explicit_mode
+        self.implicit_eta = self.eta if self.explicit_mode == HB else 0.0
+
+    def flow_update_problems(self, scene) -> list[str]:
+        """Resolves "auto" against the scene's integrator and dimension (no problems: the
+        constructor refuses 'implicit' in 3D)."""
+        if self.flow_update == "auto":
+            self._set_flow_update(getattr(scene, "integrator", "explicit") == "semi_implicit"
+                                  and self.dim == 2)
+        return []
+
     def dt_limit(self, dx: float) -> float:
         """Explicit viscous limit rho dx^2 / (2 d mu_N) (unbounded without viscosity)."""
         if self.viscosity == 0.0:
@@ -445,6 +497,8 @@ class LeftCauchyGreenMaterial(Material):
         return b, fields["J"], Fe, fields.get("Fe_prev", Fe)
 
     def _plastic_args(self):
+        if self.mode == HB_IMPLICIT:
+            return self.inv_wi, self.sigma_y, self.inv_h, self.implicit_eta
         return self.inv_wi, self.sigma_y, self.inv_h, self.eta
 
     def update_state(self, fields, dt: float) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 from .herschel_bulkley import YIELD_STRAIN
-from .left_cauchy_green import ELASTIC_KEYS, VM, LeftCauchyGreenMaterial
+from .left_cauchy_green import ELASTIC_KEYS, FLOW_UPDATE, VM, LeftCauchyGreenMaterial
 
 
 class VonMises(LeftCauchyGreenMaterial):
@@ -24,12 +24,18 @@ class VonMises(LeftCauchyGreenMaterial):
 
     name = "von_mises"
     mode = VM
+    explicit_mode = VM
     rescale_state = True
-    parameters = {**ELASTIC_KEYS, "yield_strain": YIELD_STRAIN}
+    parameters = {**ELASTIC_KEYS, "yield_strain": YIELD_STRAIN, "flow_update": FLOW_UPDATE}
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
         self.sigma_y = self.params["yield_strain"]
+        self._init_flow_update()
+
+    def scene_problems(self, scene) -> list[str]:
+        """The flow update against the integrator and dimension (`flow_update_problems`)."""
+        return self.flow_update_problems(scene)
 
     def shear_yield_stress(self) -> float:
         """tau_y = mu sigma_Y / sqrt(2), the simple-shear plateau (small strain)."""
