@@ -160,6 +160,10 @@ def main(argv=None):
     parser.add_argument("--smoke", action="store_true", help="short runs (CI smoke)")
     parser.add_argument("--explicit", action="store_true",
                         help="plug flows with the explicit integrator instead (reference)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="scene override for the plug flows, e.g. simulation.dt=0.02 or "
+                             "materials.0.flow_update=\"explicit\" (repeatable)")
+    parser.add_argument("--tag", default="", help="suffix of the plug flows' result names")
     args = parser.parse_args(argv)
     what = ["newtonian", "bigdt", "order", "bingham", "hb"] if "all" in args.what else args.what
     results = {}
@@ -172,11 +176,11 @@ def main(argv=None):
             order(results, args.smoke)
         elif item in ("bingham", "hb"):
             n = 1.0 if item == "bingham" else 0.5
+            overrides = list(args.set)
+            label = item + ("_explicit" if args.explicit else "") + args.tag
             if args.explicit:
-                plug(results, args.smoke, item, n, ['simulation.integrator="explicit"'],
-                     f"{item}_explicit")
-            else:
-                plug(results, args.smoke, item, n)
+                overrides.append('simulation.integrator="explicit"')
+            plug(results, args.smoke, item, n, overrides, label)
     out = ROOT / "bench_results"
     out.mkdir(exist_ok=True)
     path = out / ("study_channels_smoke.json" if args.smoke else "study_channels.json")

@@ -163,15 +163,25 @@ def gradient_point(bn, L, dt, Jn, mu, lam, sigma_y, h, eta):
 
 
 @njit(cache=True)
-def hessian_point(bn, L, D, dt, Jn, mu, lam, sigma_y, h, eta):
-    """D^2 e[D]/(dt V0): the derivative of tau A^-T in the direction D (module docstring)."""
+def decrement(bn, L, dt, Jn, sigma_y, h, eta):
+    """Delta of the return at L (0 without flow or when J <= 0)."""
+    AiT, J, bbar, X, s_tr, P, root = trial(bn, L, dt, Jn)
+    if not J > 0.0:
+        return 0.0
+    return plastic_decrement(J, math.asinh(s_tr), dt, sigma_y, h, eta)
+
+
+@njit(cache=True)
+def hessian_point(bn, L, D, dt, Jn, mu, lam, sigma_y, h, eta, Delta):
+    """D^2 e[D]/(dt V0): the derivative of tau A^-T in the direction D (module docstring);
+    Delta is the return's decrement at L (`decrement`), solved once per linearisation point
+    rather than per Hessian product."""
     AiT, J, bbar, X, s_tr, P, root = trial(bn, L, dt, Jn)
     j1 = ddot(AiT, D)                                   # tr(A^-1 D)
     dJ = J * dt * j1
     DPt = mul_bt(D, P)                                  # D b^n A^T
     dbbar = axpy(-dt * j1, bbar, scale(dt / root, add(DPt, transpose(DPt))))
     delta_tr = math.asinh(s_tr)
-    Delta = plastic_decrement(J, delta_tr, dt, sigma_y, h, eta)
     if Delta == 0.0:
         bE = scale(J, bbar)
         dbE = axpy(dJ, bbar, scale(J, dbbar))

@@ -364,21 +364,33 @@ def implicit_gradient(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n,
 
 
 @njit(cache=True)
+def return_decrements(eye, b, J, Lv, dt, sigma_y, inv_h, eta, out):
+    """out_p = Delta_p, the implicit return's plastic decrement at L_p (HB_IMPLICIT)."""
+    for p in range(b.shape[0]):
+        out[p] = implicit_return.decrement(load(b, p, eye), load(Lv, p, eye), dt, J[p],
+                                           sigma_y, 1.0 / inv_h, eta)
+
+
+@njit(cache=True)
 def implicit_hessian(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, inv_wi,
-                     sigma_y, inv_h, eta, dLv, dG):
-    """dG_p = D^2 e_p[dL_p] (n, d, d), the Hessian of e_p at L_p applied to dL_p."""
+                     sigma_y, inv_h, eta, dLv, dG, decrements):
+    """dG_p = D^2 e_p[dL_p] (n, d, d), the Hessian of e_p at L_p applied to dL_p.
+    ``decrements``: HB_IMPLICIT's Delta_p at L_p (`return_decrements`; not read otherwise)."""
     for p in range(b.shape[0]):
         L = load(Lv, p, eye)
         D = load(dLv, p, eye)
         if mode == HB_IMPLICIT:
             hD = implicit_return.hessian_point(load(b, p, eye), L, D, dt, J[p], mu, lam, sigma_y,
-                                               1.0 / inv_h, eta)
+                                               1.0 / inv_h, eta, decrements[p])
         else:
             S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
                                       load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
             hD = _hessian_point(S, R, B, L, D, dt, J[p], mu, lam)
         w = dt * vol0[p]
         store(dG, p, axpy(2.0 * mu_n * J[p] * w, sym(D), scale(w, hD)))
+
+
+_NO_DECREMENTS = np.zeros(0)
 
 
 # -- the material classes' common part -------------------------------------------------------
@@ -408,6 +420,8 @@ class LeftCauchyGreenMaterial(Material):
             self.mu, self.lam = lame(q["E"], q["nu"])
         self.viscosity = q["viscosity"]
         self.eye = EYE[dim]
+        self._decrement_key = None
+        self._decrement_values = _NO_DECREMENTS
         self.inv_wi, self.sigma_y, self.inv_h, self.eta = 0.0, 0.0, 1.0, 1.0
         # Per instance: the fe updates add their own fields.
         self.fields = dict(type(self).fields)
@@ -554,4 +568,25 @@ class LeftCauchyGreenMaterial(Material):
 
     def implicit_hessian(self, fields, L, dt: float, dL, dG) -> None:
         """Writes dG (n, d, d), dG_p = D^2 e_p(L_p)[dL_p]."""
-        implicit_hessian(*self._implicit_args(fields), L, dt, *self._moduli(), dL, dG)
+        implicit_hessian(*self._implicit_args(fields), L, dt, *self._moduli(), dL, dG,
+                         self._decrements(fields, L, dt))
+
+    def _decrements(self, fields, L, dt: float) -> np.ndarray:
+        """The implicit return's Delta_p at (state, L, dt), kept while those stay the same:
+        the CG iterations of a Newton step apply the Hessian at one L many times, and the
+        scalar Newton solve of the return is most of a product's cost. The key compares the
+        arrays (O(n d^2) reads, small beside a product). Empty outside HB_IMPLICIT."""
+        if self.mode != HB_IMPLICIT:
+            return _NO_DECREMENTS
+        b, J = fields["b"], fields["J"]
+        key = self._decrement_key
+        if key is not None and key[0] == dt and key[1].shape == L.shape and \
+                np.array_equal(key[1], L) and np.array_equal(key[2], b) and \
+                np.array_equal(key[3], J):
+            return self._decrement_values
+        values = np.empty(len(J))
+        return_decrements(self.eye, b, J, L, dt, self.sigma_y, self.inv_h, self.implicit_eta,
+                          values)
+        self._decrement_key = (dt, L.copy(), b.copy(), J.copy())
+        self._decrement_values = values
+        return values

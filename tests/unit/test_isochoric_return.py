@@ -149,6 +149,36 @@ def test_end_of_step_flow_rule(case):
     assert np.abs(commutator).max() <= 1e-12 * np.abs(btr).max() ** 2
 
 
+def test_hessian_decrements_follow_the_linearisation_point():
+    """The Hessian reuses the return's decrements while (state, L, dt) stay the same
+    (`_decrements`): products at a second L, after an in-place change of L, of b and of dt,
+    each equal a fresh material's, bitwise (the same kernels on the same inputs); a stale
+    decrement would differ by O(1) relative (the states are beyond yield)."""
+    rng = np.random.default_rng(11)
+    mat = make("hb_h0.6")
+    f, L = state_and_L(mat, rng)
+    D = rng.normal(size=L.shape)
+
+    def product(m, fields, L, dt):
+        dG = np.full_like(L, np.nan)
+        m.implicit_hessian(fields, L, dt, D, dG)
+        return dG
+
+    def fresh(fields, L, dt):
+        return product(make("hb_h0.6"), {k: v.copy() for k, v in fields.items()}, L, dt)
+
+    first = product(mat, f, L, DT)
+    assert np.array_equal(product(mat, f, L, DT), first)  # reused
+    _, L2 = state_and_L(mat, rng)
+    L[:] = L2  # in place: the key holds a copy
+    changed = product(mat, f, L, DT)
+    assert np.array_equal(changed, fresh(f, L, DT))
+    assert np.abs(changed - first).max() > 1e-3 * np.abs(first).max()
+    f["b"][0] *= 1.01
+    assert np.array_equal(product(mat, f, L, DT), fresh(f, L, DT))
+    assert np.array_equal(product(mat, f, L, 0.5 * DT), fresh(f, L, 0.5 * DT))
+
+
 def test_von_mises_returns_to_the_yield_surface():
     """eta = 0: |dev b^{n+1}| = sigma_Y exactly beyond yield."""
     rng = np.random.default_rng(7)

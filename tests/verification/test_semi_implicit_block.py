@@ -4,7 +4,8 @@
 
 B-splines reproduce linear fields (000 §3.2: sum_i x_i grad w_ip^T = I), so G2P stores
 L_p = L for every particle (APIC: grad w; MLS: C) and each particle's state follows the driver's
-single point: Oldroyd-B (ob_spd) under start-up shear and extension, Herschel-Bulkley in shear.
+single point: Oldroyd-B (ob_spd) under start-up shear and extension, Herschel-Bulkley in shear
+(both flow updates).
 The only difference is the round-off of L_p (a sum of 9 or 27 products, ~1e-16 relative) over
 the steps: 1e-12 relative on b and J leaves room for 40 steps of it and nothing else.
 """
@@ -88,9 +89,16 @@ CASES = {
                                       "relaxation_time": 1.0}, "shear"),
     "oldroyd_b extension": ("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "viscosity": 0.1,
                                           "relaxation_time": 1.0}, "extension"),
+    # Both flow updates: the scene's "auto" would pick the implicit one (semi-implicit, 2D)
+    # while the driver's unconfigured material starts explicit, so the key is given.
     "herschel_bulkley shear": ("herschel_bulkley", {"mu": 1.0, "lambda": 10.0,
                                                     "yield_strain": 0.01, "flow_index": 0.5,
-                                                    "flow_consistency": 0.01}, "shear"),
+                                                    "flow_consistency": 0.01,
+                                                    "flow_update": "explicit"}, "shear"),
+    "herschel_bulkley shear, implicit return": (
+        "herschel_bulkley", {"mu": 1.0, "lambda": 10.0, "yield_strain": 0.01,
+                             "flow_index": 0.5, "flow_consistency": 0.01,
+                             "flow_update": "implicit"}, "shear"),
 }
 
 
@@ -105,7 +113,9 @@ def velocity_gradient(kind, dim):
 
 @pytest.mark.parametrize("case, dim, transfer", [("oldroyd_b shear", 2, "apic"),
                                                   ("oldroyd_b extension", 3, "mls"),
-                                                  ("herschel_bulkley shear", 2, "mls")])
+                                                  ("herschel_bulkley shear", 2, "mls"),
+                                                  ("herschel_bulkley shear, implicit return", 2,
+                                                   "mls")])
 def test_block_matches_the_homogeneous_driver(case, dim, transfer):
     type_, params, kind = CASES[case]
     L = velocity_gradient(kind, dim)
