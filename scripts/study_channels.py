@@ -52,6 +52,20 @@ def plug_profile(y, n, K=0.1, tau_y=0.1, rho_g=1.0):
                                                   - np.maximum(s - y0, 0.0) ** a)
 
 
+def plug_half_width(p, sigma_y):
+    """The plug's half-width: the largest |y - 1/2| of the unyielded particles (|dev b| <=
+    sigma_Y, the flow rule's own criterion) in the band around the centre that the first
+    yielded particle, going out from the centre, ends; 0 when the centre has yielded."""
+    b = p["b"]
+    d = b.shape[1]
+    dev = b - np.trace(b, axis1=1, axis2=2)[:, None, None] / d * np.eye(d)
+    unyielded = np.sqrt(np.einsum("pij,pij->p", dev, dev)) <= sigma_y * (1 + 1e-9)
+    s = np.abs(p["x"][:, 1] - 0.5)
+    order_s = np.argsort(s)
+    first_yielded = np.argmax(~unyielded[order_s]) if (~unyielded).any() else len(s)
+    return float(s[order_s][first_yielded - 1]) if first_yielded else 0.0
+
+
 def run_to(scene_path, times, overrides=()):
     """Simulate and return {t: (y, vx, particle fields copy)} at each of ``times``."""
     times = sorted(times)
@@ -128,18 +142,7 @@ def plug(results, smoke, name, n, overrides=(), label=None):
     expected = plug_profile(y, n)
     umax = expected.max()
     err = np.abs(vx - expected).max() / umax
-    material = sim.materials[0]
-    b = p["b"]
-    d = b.shape[1]
-    dev = b - np.trace(b, axis1=1, axis2=2)[:, None, None] / d * np.eye(d)
-    norm = np.sqrt(np.einsum("pij,pij->p", dev, dev))
-    unyielded = norm <= material.sigma_y * (1 + 1e-9)
-    s = np.abs(y - 0.5)
-    # The plug: unyielded particles in the band around the centre (the first yielded
-    # particle, going out from the centre, ends it).
-    order_s = np.argsort(s)
-    first_yielded = np.argmax(~unyielded[order_s]) if (~unyielded).any() else len(s)
-    half_width = s[order_s][first_yielded - 1] if first_yielded else 0.0
+    half_width = plug_half_width(p, sim.materials[0].sigma_y)
     dx = sim.dx
     results[f"{name}_t{t:g}_error_over_umax"] = err
     results[f"{name}_plug_half_width"] = half_width

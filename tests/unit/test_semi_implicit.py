@@ -285,6 +285,30 @@ def test_newton_converges_to_its_tolerance():
     assert grid.energy(v) < E_start
 
 
+def test_newton_stops_where_the_energy_cannot_resolve_the_step(monkeypatch):
+    """With newton_tolerance = 0 Newton iterates until its predicted decrease |g . dx| is below
+    ENERGY_RESOLUTION |E| (the round-off of E), then stops converged instead of halving the
+    line search 30 times and failing (what the Bingham channel's first step at dx = 1/64 did
+    with the default tolerance). The stop leaves |P grad E| at round-off level: at most
+    1e-12 |M v*| (measured 5e-15 after 8 Newton steps; the default tolerance is 1e-6).
+    Without the stop the same solve fails."""
+    from hpcmpm.solvers import semi_implicit
+
+    sim, integ, dt = grid_problem(dim=2, mode="newton", dt=2e-2)
+    integ.newton_tolerance = 0.0
+    start = integ._flat["velocity"].copy()
+    integ.solve(sim, dt)
+    assert integ.last_step["newton_iterations"] < semi_implicit.NEWTON_MAX_ITERATIONS
+    grid = Grid(sim, integ, dt)
+    g = grid.gradient(grid.f["velocity"].copy())
+    ref = np.sqrt(np.sum((integ._mass[:, None] * integ._v_star) ** 2 * integ._free[:, None]))
+    assert np.linalg.norm(g) <= 1e-12 * ref
+    monkeypatch.setattr(semi_implicit, "ENERGY_RESOLUTION", 0.0)
+    integ._flat["velocity"][:] = start
+    with pytest.raises(semi_implicit.SolverFailure):
+        integ.solve(sim, dt)
+
+
 def test_time_step_is_advective():
     """dt from the advection bound alone: (v + |g| dt) dt = cfl dx; at rest with gravity
     dt = sqrt(cfl dx / |g|); without gravity cfl dx / v; the elastic wave speed (here
