@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
-from .contact import ParticleWalls
+from .contact import ParticleColliders, ParticleWalls
 from .families import find_families, half_bonds_per_particle
 from .geometry import damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
@@ -276,11 +276,12 @@ class CheckpointedBonds:
 
 class PDBodyExtension(CheckpointedBonds, PDExtension):
     """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles; the
-    domain walls act per particle (pd/contact.py; analytic colliders do not, yet)."""
+    domain walls and the analytic colliders act per particle (pd/contact.py)."""
 
     def __init__(self, sim, material):
         super().__init__(sim, material)
         self.walls = ParticleWalls(sim.scene)
+        self.colliders = ParticleColliders(sim.scene)
 
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
@@ -291,6 +292,7 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
             x = p["x"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
             self.walls.apply(x, v, dt)
+            self.colliders.apply(x, v, sim.time, dt)
             x += dt * v
             self.write_damage(start, stop)
 
