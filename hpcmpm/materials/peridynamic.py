@@ -183,8 +183,11 @@ class Peridynamic(Material):
         def stress(F, tau):
             other.update_stress({"F": np.ascontiguousarray(F), "tau": tau}, 0.0)
 
+        def energy(F, vol):
+            return other.energy({"F": np.ascontiguousarray(F), "vol0": vol})
+
         return Correspondence(self.dim, stress, prm["stabilization"] * self.micromodulus(), s0,
-                              c_dt)
+                              c_dt, energy=energy)
 
     def make_extension(self, sim):
         """The step extension that does the PD work (hpcmpm/pd/extension.py)."""
@@ -232,6 +235,7 @@ class Peridynamic(Material):
         fields["tau"][...] = 0.0
 
     def energy(self, fields) -> float:
-        """The strain energy is the PD extension's (bonds are not particle fields): 0 here."""
+        """0 here: the bond strain energy is the PD extension's (bonds are not particle
+        fields), `PDExtension.strain_energy`, which the diagnostics add."""
         return 0.0
 

@@ -21,6 +21,7 @@ set, so particles that become PD later get their x0 when they do).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -33,7 +34,7 @@ from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
 from .contact import ParticleColliders, ParticleWalls
 from .families import find_families, half_bonds_per_particle
-from .geometry import damage, weighted_volume_sums
+from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 
 log = logging.getLogger(__name__)
@@ -194,6 +195,25 @@ class PDExtension:
             self.force = np.empty((n, self.sim.dim))
         self.broken += bond_forces(self.model, self.pts, self.force, self.halo.refresh_rows(n))
         return self.force
+
+    def strain_energy(self, sim) -> float:
+        """Bond strain energy of this rank's PD particles, sum_p V_p W_p at the current
+        positions (each bond once: half its micropotential at each end), for the diagnostics'
+        elastic energy (`Simulation.diagnostics`). Bonds stretched past s0, which the next
+        force pass breaks, carry none; nothing of the run's state changes. Collective (the
+        bond rows and the halo are brought up to date first, as the next step would)."""
+        if self.bonds is None:          # no step yet: x = x0 when the bonds are made
+            return 0.0
+        self.prepare()
+        energy = getattr(self.model, "strain_energy", None)
+        if energy is None:
+            return 0.0
+        b, pts = self.bonds, self.pts
+        status = b.status.copy()
+        break_stretched(pts.x, pts.x0, b.offsets, b.slot, status,
+                        getattr(self.model, "s0", math.inf), pts.n_owned)
+        trial = Bonds(b.offsets, b.partner, b.weight, status, b.slot, b.state)
+        return energy(dataclasses.replace(pts, bonds=trial))
 
     def write_damage(self, start, stop) -> None:
         """phi (003 eq. 4.8) of the rows; only when bonds broke since the last call (the
