@@ -33,7 +33,7 @@ from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
 from .contact import ParticleColliders, ParticleWalls
-from .families import find_families, half_bonds_per_particle
+from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 
@@ -87,13 +87,17 @@ class PDExtension:
             self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
         self.model.resize(len(self.pts.x))
 
+    def _where(self, key: str = "") -> str:
+        """The material's place in the scene file, for messages in the validator's format."""
+        return f"{self.sim.scene.path}: materials[{self.group}]" + (f".{key}" if key else "")
+
     def _check_memory(self, n: int) -> None:
         """Refuse a horizon whose bonds would not fit: an estimate before allocating, from
-        an interior family's count (collective; the same SceneError on every rank)."""
-        per_particle = half_bonds_per_particle(
-            self.sim.dim, self.material.delta / self.material.spacing,
-            self.material.params["partial_volumes"])
-        need = n * per_particle * (Bonds.empty().resident_bytes_per_bond() + 4)
+        an interior family's count (collective; the same SceneError on every rank). The
+        start-up memory check (hpcmpm/startup.py) counts the bonds too; this one sees the
+        rank's actual share."""
+        per_particle = self.material.half_bonds_per_particle()
+        need = n * self.material.side_bytes_per_particle()
         try:
             memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         except (ValueError, OSError, AttributeError):
@@ -101,10 +105,9 @@ class PDExtension:
         worst = self.sim.domain.max(float(need))
         if worst > 0.5 * memory:
             raise SceneError(
-                f"material {self.material.spec.name!r} (peridynamic): horizon: "
-                f"{per_particle} half-bonds per particle need about {worst / 2**30:.1f} GiB "
-                f"on one rank, more than half of its {memory / 2**30:.1f} GiB: lower the "
-                "horizon or use more ranks")
+                f"{self._where('horizon')}: {per_particle} half-bonds per particle need about "
+                f"{worst / 2**30:.1f} GiB on one rank, more than half of its "
+                f"{memory / 2**30:.1f} GiB: lower the horizon or use more ranks")
 
     def _initialize(self, start, stop) -> None:
         """Families in the reference configuration (collective)."""
@@ -130,9 +133,9 @@ class PDExtension:
                              p["pd_wvol0"][start:stop])
         lonely = self.sim.domain.sum(int(np.sum(self.bonds.counts() == 0)))
         if lonely and self.sim.domain.rank == 0:
-            log.warning("material %r: %d peridynamic particle(s) have no bond (horizon "
-                        "%.3g, spacing %.3g)", self.material.spec.name, lonely,
-                        self.material.delta, self.material.spacing)
+            log.warning("%s: warning: %d particle(s) of material %r have no bond (horizon "
+                        "%.4g, spacing %.4g): they move freely", self._where(), lonely,
+                        self.material.spec.name, self.material.delta, self.material.spacing)
         # The halo was built before the persistent fields existed: ship them now.
         self._rebuild(start, stop)
 
