@@ -161,6 +161,23 @@ class Simulation:
         if hasattr(extension, "after_g2p"):
             self._after_g2p.append(extension)
 
+    # Load-balance weight of a particle with no work besides the MPM step, in the integer
+    # units of `load_weights` (1/64 resolves the measured cost of a PD half-bond, pd/load.py).
+    particle_weight = 64
+
+    def load_weights(self) -> np.ndarray | None:
+        """Integer cost of each particle for the decomposition and rebalancing
+        (`Domain.decompose`, `Domain.rebalance`): None (every particle costs the same)
+        unless a step extension adds its particles' work (``add_load(sim, weights)``:
+        peridynamic bonds)."""
+        sources = [e for e in self.extensions if hasattr(e, "add_load")]
+        if not sources:
+            return None
+        weights = np.full(self.particles.n, self.particle_weight, dtype=np.int64)
+        for source in sources:
+            source.add_load(self, weights)
+        return weights
+
     # -- the step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:
         """Advance by ``dt`` with the scene's integrator (explicit: 000 §3.3, Fig. 3.1)."""

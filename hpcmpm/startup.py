@@ -218,7 +218,7 @@ def initial_particles(sim) -> MemoryEstimate:
         mark_prescribed_particles(scene, p)
     # Most particles change rank here (a slab of lattice layers is not a bisection box):
     # moved in rounds, so the buffers in flight stay at MIGRATE_BATCH rows.
-    domain.decompose(p, batch=MIGRATE_BATCH)
+    domain.decompose(p, batch=MIGRATE_BATCH, weights=sim.load_weights())
     return estimate
 
 

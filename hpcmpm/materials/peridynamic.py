@@ -88,9 +88,11 @@ class Peridynamic(Material):
                            doc="segments (2D) or planar polygons (3D) no bond crosses"),
     }
     # Reference positions (NaN until the first PD phase copies x), the LPS weighted volume,
-    # the damage denominator, and the damage phi (003 eq. 4.8) for frames.
+    # the damage denominator, the damage phi (003 eq. 4.8) for frames, and the active
+    # half-bonds (-1 until the bonds are made) that weigh the particle for load balance.
     fields = {"x0": FieldSpec(VECTOR, "f8", math.nan), "pd_m": FieldSpec(SCALAR),
-              "pd_wvol0": FieldSpec(SCALAR), "damage": FieldSpec(SCALAR)}
+              "pd_wvol0": FieldSpec(SCALAR), "damage": FieldSpec(SCALAR),
+              "active_bonds": FieldSpec(SCALAR, "i4", -1)}
     deformation = "F"
 
     def __init__(self, spec, dim: int):

@@ -36,6 +36,7 @@ from .contact import ParticleColliders, ParticleWalls
 from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
+from .load import bond_cost
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,7 @@ class PDExtension:
         self.broken = 0
         self._damage_at = 0
         self.redistributions = 0
+        self.bond_cost = bond_cost(sim.dim, self.model.name)     # c_b (pd/load.py)
 
     # -- keeping the side structures in step with the particles -------------------------------
     def _rows(self):
@@ -131,6 +133,7 @@ class PDExtension:
         weighted_volume_sums(self.pts.x0, self.pts.vol, self.bonds.offsets, self.bonds.slot,
                              self.bonds.status, self.bonds.weight, stop - start,
                              p["pd_wvol0"][start:stop])
+        p["active_bonds"][start:stop] = self.bonds.intact_counts()
         lonely = self.sim.domain.sum(int(np.sum(self.bonds.counts() == 0)))
         if lonely and self.sim.domain.rank == 0:
             log.warning("%s: warning: %d particle(s) of material %r have no bond (horizon "
@@ -228,6 +231,17 @@ class PDExtension:
         p, b = self.sim.particles, self.bonds
         damage(self.pts.vol, b.offsets, b.slot, b.status, b.weight, p["pd_wvol0"][start:stop],
                stop - start, p["damage"][start:stop])
+        p["active_bonds"][start:stop] = b.intact_counts()
+
+    def add_load(self, sim, weights: np.ndarray) -> None:
+        """`Simulation.load_weights`: each particle of this material costs c_b times its
+        active half-bonds more (pd/load.py), in the weights' integer units; before the bonds
+        exist, an interior family's count. Rows found by group (any order: between steps)."""
+        p = sim.particles
+        rows = np.flatnonzero(p["group"] == self.group)
+        active = p["active_bonds"][rows].astype(np.float64)
+        active[active < 0] = self.material.half_bonds_per_particle()
+        weights[rows] += np.rint(sim.particle_weight * self.bond_cost * active).astype(np.int64)
 
 
 class _HalfBondRows:
