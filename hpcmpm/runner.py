@@ -279,8 +279,12 @@ def make_writer(sim: Simulation, out_dir: Path, restart_chain: list[str], frame_
 
     provenance = {"restart_chain": restart_chain, "n_ranks": sim.domain.size,
                   "hpcmpm_version": __version__}
-    return FrameWriter(out_dir, sim.domain, sim.scene.text, sim.dim,
-                       list(sim.scene.output.fields), provenance, first_frame=frame_index)
+    # Step extensions add their own fields to frames (SPB-MPM: model, damage, EE).
+    fields = list(sim.scene.output.fields)
+    fields += [f for e in sim.extensions for f in getattr(e, "output_fields", ())
+               if f not in fields]
+    return FrameWriter(out_dir, sim.domain, sim.scene.text, sim.dim, fields, provenance,
+                       first_frame=frame_index)
 
 
 def report_done(comm: Communicator, out_dir: Path, diag: dict, wall: float, steps: int,

@@ -124,6 +124,14 @@ class Simulation:
         self.extensions: list = []
         self._force_sources: list = []
         self._after_g2p: list = []
+        self._stress_hooks: list = []
+        # A material that works through a step extension (peridynamics, SPB-MPM) makes its
+        # own (None: one it shares was made already).
+        for material in self.materials:
+            if hasattr(material, "make_extension"):
+                extension = material.make_extension(self)
+                if extension is not None:
+                    self.add_extension(extension)
         self.time = 0.0
         self.step_index = 0
         # Optional ``forcing(sim, dt)`` that adds ``dt * b`` to particle velocities before P2G:
@@ -156,6 +164,16 @@ class Simulation:
             self._force_sources.append(extension)
         if hasattr(extension, "after_g2p"):
             self._after_g2p.append(extension)
+        # SPB-MPM (003 eq. 6.10): ``stress_chunk(sim, g, start, stop, tau, dt)`` sees each
+        # chunk's Kirchhoff stress between the material kernel and P2G (and may zero rows
+        # of it); ``grid_scattered`` names scalar grid fields it scatters there, summed to
+        # owners with the mass and filled back into the ghosts with the velocity.
+        if hasattr(extension, "stress_chunk"):
+            self._stress_hooks.append(extension)
+        for name in getattr(extension, "grid_scattered", ()):
+            self.grid.declare(name, SCALAR)
+            self._scattered.append(name)
+            self._gathered.append(name)
 
     # -- the step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:
@@ -278,6 +296,9 @@ class Simulation:
                     fields = {name: a[start:stop] for name, a in arrays.items()}
                     fields["tau"] = tau
                     material.update_stress(fields, dt)
+                for hook in self._stress_hooks:
+                    with t("spb_energy"):
+                        hook.stress_chunk(self, g, start, stop, tau, dt)
                 with t("p2g"):
                     SCATTER[self.dim](
                         x[start:stop], v[start:stop],

@@ -12,6 +12,7 @@ from typing import Any
 
 from ..errors import SceneError
 from .base import ElasticMaterial, Material, Param, check_params, lame
+from .failure import no_pd_stress_problem
 from .fixed_corotated import FixedCorotated
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
@@ -39,6 +40,9 @@ def validate_params(type_name: str, params: dict[str, Any]) -> list[str]:
     cls = MATERIALS.get(type_name)
     if cls is None:
         return [_unknown_type(type_name)]
+    if "failure" in params and "failure" not in cls.parameters:   # SPB-MPM (failure.py)
+        return [no_pd_stress_problem(type_name)] + check_params(
+            cls.parameters, {k: v for k, v in params.items() if k != "failure"})
     return check_params(cls.parameters, params)
 
 

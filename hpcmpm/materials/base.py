@@ -212,7 +212,12 @@ class Material:
     def __init__(self, spec, dim: int):
         if dim not in (2, 3):
             raise ValueError(f"dim must be 2 or 3, got {dim}")
-        problems = check_params(self.parameters, dict(spec.params))
+        params = dict(spec.params)
+        problems = []
+        if "failure" in params and "failure" not in self.parameters:
+            problems.append(no_pd_stress_problem(self.name))   # SPB-MPM, materials/failure.py
+            params.pop("failure")
+        problems += check_params(self.parameters, params)
         if not (math.isfinite(spec.density) and spec.density > 0.0):
             problems.append(f"density: must be > 0, got {spec.density:g}")
         if problems:
@@ -226,6 +231,8 @@ class Material:
         # One line per particle whose state became unrecoverable in a kernel (the kernel
         # also writes NaN into its J or F, which the health check finds).
         self.failures: list[str] = []
+        # SPB-MPM (003 ch. 6): a `failure` table adds fields and a step extension.
+        attach_failure(self)
 
     def configure(self, scene) -> None:
         """Called once the scene is known (grid spacing, time-step limits): a model that
@@ -313,3 +320,10 @@ class ElasticMaterial(Material):
         """sum_p vol0_p psi(F_p)."""
         return float(self.energy_kernels[self.dim](fields["F"], fields["vol0"],
                                                    *self.kernel_moduli()))
+
+
+# SPB-MPM (003 ch. 6): the elastic models can turn into peridynamics (materials/failure.py,
+# which builds on Param above, hence the import at the end).
+from .failure import SPB_FAILURE, attach_failure, no_pd_stress_problem  # noqa: E402
+
+ElasticMaterial.parameters = {**ElasticMaterial.parameters, "failure": SPB_FAILURE}

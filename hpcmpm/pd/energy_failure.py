@@ -66,7 +66,9 @@ def edge_fraction(r, delta, spacing, partial_volumes):
 def energy_failure(x, x0, offsets, slot, status, weight, A, n_owned, Wc, delta, spacing,
                    partial_volumes, work_form, work, y0, y1, y2, t0, t1, t2):
     """Break the intact bonds of the owned points whose energy W exceeds beta W_c (module
-    docstring). ``A`` (owned + halo, d, d) from `correspondence_force_state`; the work arrays
+    docstring). ``A`` (owned + halo, d, d) from `correspondence_force_state`; ``Wc`` (owned +
+    halo,) the critical energy of each point's material (a bond between two materials takes
+    the smaller, the same at both ends); the work arrays
     (nb,) are used only when ``work_form`` (the previous Y and bond force per half-bond, and
     the accumulated work). Returns (half-bonds broken, smallest |W - beta W_c| / (beta W_c)
     over the bonds tested)."""
@@ -104,7 +106,8 @@ def energy_failure(x, x0, offsets, slot, status, weight, A, n_owned, Wc, delta, 
                 t0[b], t1[b], t2[b] = T0, T1, T2
             else:
                 W = T0 * (Y0 - X0) + T1 * (Y1 - X1) + T2 * (Y2 - X2)
-            limit = edge_fraction(norm3(X0, X1, X2), delta, spacing, partial_volumes) * Wc
+            limit = edge_fraction(norm3(X0, X1, X2), delta, spacing, partial_volumes) * \
+                min(Wc[p], Wc[q])
             margin = min(margin, abs(W - limit) / limit)
             if W > limit:
                 status[b] = 0

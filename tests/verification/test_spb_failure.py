@@ -54,7 +54,8 @@ def evaluate(body, dim, strain, state, form):
     b = body.pts.bonds
     return ef.energy_failure(body.pts.x, body.pts.x0, b.offsets, b.slot, b.status, b.weight,
                              body.model.A, body.pts.n_owned,
-                             ef.critical_bond_energy(dim, G_C, DELTA), DELTA, 1.0, True,
+                             np.full(len(body.pts.x), ef.critical_bond_energy(dim, G_C, DELTA)),
+                             DELTA, 1.0, True,
                              form == "work", *state)
 
 
