@@ -16,6 +16,7 @@ from .failure import no_pd_stress_problem
 from .fixed_corotated import FixedCorotated
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
+from .peridynamic import Peridynamic
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
 from .weakly_compressible import WeaklyCompressible
@@ -23,7 +24,7 @@ from .weakly_compressible import WeaklyCompressible
 MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
-                WeaklyCompressible)
+                WeaklyCompressible, Peridynamic)
 }
 
 
@@ -57,4 +58,5 @@ def make_material(spec, dim: int) -> Material:
 
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
            "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
+           "Peridynamic",
            "StableNeoHookean", "Snow", "WeaklyCompressible"]

@@ -13,7 +13,10 @@ ever dropped because of the decomposition (LAMMPS PERI drops them, pair_peri_*.c
 
 Migration. `migrate_with_bonds` sends each leaving particle's bond segment (partner ids,
 status, weights, per-bond state) to its new owner alongside `Domain.migrate`, and realigns
-the bond rows with the particle rows by id.
+the bond rows with the particle rows by id. `redistribute_segments` does the same after the
+fact, for particles that moved by a route that does not know about bonds (the engine's
+migration and rebalancing): the ranks that miss segments name the ids, their old holders send
+them.
 """
 
 from __future__ import annotations
@@ -110,6 +113,37 @@ class PDHalo:
         return out
 
 
+    def refresh_rows(self, n_owned: int):
+        """A callable refreshing the halo rows (n_owned..) of arrays over owned + halo rows
+        from their owned rows."""
+        def refresh(arrays: dict[str, np.ndarray]) -> None:
+            self.refresh({k: a[:n_owned] for k, a in arrays.items()},
+                         {k: a[n_owned:] for k, a in arrays.items()})
+        return refresh
+
+
+def send_segments(domain, bonds, row_ids, rows, dest):
+    """Send the segments of bond rows ``rows`` (ids ``row_ids[rows]``) to ranks ``dest``
+    (grouped by destination); returns (ids, counts, arrays) received, grouped by source."""
+    counts, arrays = bonds.extract(rows)
+    seg_send = np.bincount(dest, minlength=domain.size).astype(np.int64)
+    bond_send = np.bincount(np.repeat(dest, counts), minlength=domain.size).astype(np.int64)
+    seg_recv = np.empty(domain.size, np.int64)
+    bond_recv = np.empty(domain.size, np.int64)
+    domain.comm.Alltoall(seg_send, seg_recv)
+    domain.comm.Alltoall(bond_send, bond_recv)
+    seg = {"id": np.asarray(row_ids)[rows], "count": counts}
+    got_seg = unpack_rows(exchange_rows(domain.comm, pack_rows(seg, np.arange(len(rows)),
+                                                               row_dtype(seg)),
+                                        seg_send, seg_recv, TAG_PD_SEGMENTS))
+    arrays = {k.replace(".", "__"): v for k, v in arrays.items()}
+    got = unpack_rows(exchange_rows(domain.comm, pack_rows(arrays, np.arange(int(counts.sum())),
+                                                           row_dtype(arrays)),
+                                    bond_send, bond_recv, TAG_PD_BONDS))
+    return (np.ascontiguousarray(got_seg["id"]), np.ascontiguousarray(got_seg["count"]),
+            {k.replace("__", "."): np.ascontiguousarray(v) for k, v in got.items()})
+
+
 def migrate_with_bonds(domain, particles, bonds) -> int:
     """`Domain.migrate` for a set whose rows all carry bonds: each leaver's bond segment goes
     to its new owner; afterwards ``bonds`` rows follow ``particles`` rows (matched by id).
@@ -119,35 +153,45 @@ def migrate_with_bonds(domain, particles, bonds) -> int:
     dest = domain.owners(particles["x"]) if domain.size > 1 else np.full(len(ids), me)
     leaving = np.flatnonzero(dest != me)
     order = leaving[np.argsort(dest[leaving], kind="stable")]
-    seg_counts_send = np.bincount(dest[order], minlength=domain.size).astype(np.int64)
-    counts, arrays = bonds.extract(order)
-    bond_dest = np.repeat(dest[order], counts)
-    bond_counts_send = np.bincount(bond_dest, minlength=domain.size).astype(np.int64)
     domain.migrate(particles)
     total = int(domain.sum(int(len(order))))
     if total == 0:
         return 0
-    seg_counts_recv = np.empty(domain.size, np.int64)
-    bond_counts_recv = np.empty(domain.size, np.int64)
-    domain.comm.Alltoall(seg_counts_send, seg_counts_recv)
-    domain.comm.Alltoall(bond_counts_send, bond_counts_recv)
-    seg = {"id": ids[order], "count": counts}
-    seg_recv = unpack_rows(exchange_rows(domain.comm, pack_rows(seg, np.arange(len(order)),
-                                                                row_dtype(seg)),
-                                         seg_counts_send, seg_counts_recv, TAG_PD_SEGMENTS))
-    arrays = {k.replace(".", "__"): v for k, v in arrays.items()}
-    bond_recv = unpack_rows(exchange_rows(domain.comm,
-                                          pack_rows(arrays, np.arange(len(bond_dest)),
-                                                    row_dtype(arrays)),
-                                          bond_counts_send, bond_counts_recv, TAG_PD_BONDS))
+    got_ids, got_counts, got = send_segments(domain, bonds, ids, order, dest[order])
     stay = np.ones(len(ids), dtype=bool)
     stay[order] = False
-    row_ids = np.concatenate([ids[stay], seg_recv["id"]])
     bonds.keep(stay)
-    bonds.append(seg_recv["count"], {k.replace("__", "."): np.ascontiguousarray(v)
-                                     for k, v in bond_recv.items()})
-    align_rows(bonds, row_ids, particles["id"])
+    bonds.append(got_counts, got)
+    align_rows(bonds, np.concatenate([ids[stay], got_ids]), particles["id"])
     return total
+
+
+def redistribute_segments(domain, bonds, row_ids: np.ndarray, target_ids: np.ndarray
+                          ) -> np.ndarray:
+    """After particles moved between ranks by any route (migration, rebalance, restart):
+    each rank sends the segments of rows it no longer holds to the ranks that now hold those
+    particles, then the bond rows follow ``target_ids`` (this rank's PD particle ids in row
+    order). Collective; only the ids of the arrivals travel to every rank. Returns the new
+    row ids (= target_ids)."""
+    row_ids = np.asarray(row_ids, dtype=np.int64)
+    target_ids = np.asarray(target_ids, dtype=np.int64)
+    missing = np.setdiff1d(target_ids, row_ids)
+    wanted = domain.allgather(missing)
+    orphan = ~np.isin(row_ids, target_ids)
+    rows, dest = [], []
+    for r, ids_r in enumerate(wanted):
+        if r == domain.rank or not len(ids_r):
+            continue
+        hit = np.flatnonzero(orphan & np.isin(row_ids, ids_r))
+        rows.append(hit)
+        dest.append(np.full(len(hit), r, np.int64))
+    rows = np.concatenate(rows) if rows else np.empty(0, np.int64)
+    dest = np.concatenate(dest) if dest else np.empty(0, np.int64)
+    got_ids, got_counts, got = send_segments(domain, bonds, row_ids, rows, dest)
+    bonds.keep(~orphan)
+    bonds.append(got_counts, got)
+    align_rows(bonds, np.concatenate([row_ids[~orphan], got_ids]), target_ids)
+    return target_ids.copy()
 
 
 def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
@@ -159,4 +203,4 @@ def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
     bonds.permute(pos)
 
 
-__all__ = ["PDHalo", "migrate_with_bonds", "align_rows"]
+__all__ = ["PDHalo", "migrate_with_bonds", "redistribute_segments", "align_rows"]

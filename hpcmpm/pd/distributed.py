@@ -19,7 +19,7 @@ import numpy as np
 from ..parallel.pd_halo import PDHalo, migrate_with_bonds
 from .families import find_families
 from .geometry import damage, weighted_volume_sums
-from .integrator import PDPoints
+from .integrator import PDPoints, bond_forces
 from .moduli import silling_askari_steps
 
 
@@ -98,14 +98,8 @@ class DistributedPDBody:
             self.pts.x[: p.n] = p["x"]
             self.halo.refresh({"x": p["x"]}, {"x": self.pts.x[p.n:]})
         n = p.n
-        self.broken += self.model.update_state(self.pts)
-        names = self.model.halo_fields
-        if names:
-            fields = {k: getattr(self.model, k) for k in names}
-            self.halo.refresh({k: a[:n] for k, a in fields.items()},
-                              {k: a[n:] for k, a in fields.items()})
         force = np.empty((n, self.domain.dim))
-        self.broken += self.model.forces(self.pts, force)
+        self.broken += bond_forces(self.model, self.pts, force, self.halo.refresh_rows(n))
         mass = p["mass"]
         p["v"][...] += dt * (force + p["vol0"][:, None] * self.body_force) / mass[:, None]
         p["x"][...] += dt * p["v"]

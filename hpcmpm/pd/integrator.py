@@ -36,6 +36,16 @@ class PDPoints:
     fields: dict = field(default_factory=dict)
 
 
+def bond_forces(model, pts: PDPoints, force: np.ndarray, refresh_halo) -> int:
+    """Failure and state on the owners, the state's halo rows refreshed by
+    ``refresh_halo(arrays)`` (arrays over owned + halo rows), then the bond forces into
+    ``force`` (Alg. 2 lines 3-14). Returns the half-bonds broken."""
+    broken = model.update_state(pts)
+    if model.halo_fields:
+        refresh_halo({k: getattr(model, k) for k in model.halo_fields})
+    return broken + model.forces(pts, force)
+
+
 class PDBody:
     """A PD body integrated by its own bond forces.
 
@@ -77,9 +87,7 @@ class PDBody:
         self.steps = 0
         self.refresh_halo_positions()
         model.setup(self.pts)
-        for arr in self.pts.fields.values():
-            arr[n:] = arr[self.src]
-        self._refresh_halo_state()
+        self._refresh_images(self.pts.fields)
         b = self.pts.bonds
         self.initial_weighted_volume = np.empty(n)
         weighted_volume_sums(self.pts.x0, self.pts.vol, b.offsets, b.slot, b.status, b.weight,
@@ -95,21 +103,17 @@ class PDBody:
         if len(self.src):
             self.pts.x[n:] = self.pts.x[self.src] + self.shift
 
-    def _refresh_halo_state(self) -> None:
+    def _refresh_images(self, arrays: dict) -> None:
         n = self.pts.n_owned
         if len(self.src):
-            for name in self.model.halo_fields:
-                arr = getattr(self.model, name)
+            for arr in arrays.values():
                 arr[n:] = arr[self.src]
 
     def compute_forces(self) -> int:
         """Failure, state and bond forces at the current positions (Alg. 2 lines 3-14);
         writes self.force; returns the half-bonds broken."""
         self.refresh_halo_positions()
-        broken = self.model.update_state(self.pts)
-        self._refresh_halo_state()
-        broken += self.model.forces(self.pts, self.force)
-        return broken
+        return bond_forces(self.model, self.pts, self.force, self._refresh_images)
 
     def step(self, dt: float) -> None:
         """One symplectic Euler step (Alg. 2 line 15)."""

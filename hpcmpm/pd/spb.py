@@ -55,7 +55,7 @@ from ..kernels.shape import stencil_base, weights
 from ..kernels.transfer import MLS, SCATTER_FORCES
 from ..materials.failure import pd_stress
 from ..parallel.exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
-from ..parallel.pd_halo import TAG_PD_BONDS, TAG_PD_SEGMENTS, PDHalo, align_rows
+from ..parallel.pd_halo import TAG_PD_BONDS, PDHalo, align_rows, redistribute_segments
 from ..state import VECTOR
 from .bonds import Bonds
 from .correspondence import (correspondence_force_state, correspondence_forces,
@@ -456,46 +456,6 @@ def _send_records(domain, records) -> dict:
     recv = exchange_rows(domain.comm, pack_rows(rows, order, row_dtype(rows)), send_counts,
                          recv_counts, TAG_PD_BONDS)
     return {k: np.ascontiguousarray(v) for k, v in unpack_rows(recv).items()}
-
-
-def redistribute_segments(domain, bonds, row_ids, target_ids) -> None:
-    """After particles changed rank by a route that does not know about bonds (migration,
-    rebalancing): ranks that miss segments get them from their old holders; afterwards the
-    bond rows follow ``target_ids``. Collective. (pdcore builds the same helper in
-    parallel/pd_halo.py; this one goes when that lands.)"""
-    row_ids = np.asarray(row_ids, np.int64)
-    target_ids = np.asarray(target_ids, np.int64)
-    missing = np.setdiff1d(target_ids, row_ids)
-    wanted = domain.allgather(missing)
-    orphan = ~np.isin(row_ids, target_ids)
-    rows, dest = [], []
-    for r, ids_r in enumerate(wanted):
-        if r != domain.rank and len(ids_r):
-            hit = np.flatnonzero(orphan & np.isin(row_ids, ids_r))
-            rows.append(hit)
-            dest.append(np.full(len(hit), r, np.int64))
-    rows = np.concatenate(rows) if rows else np.empty(0, np.int64)
-    dest = np.concatenate(dest) if dest else np.empty(0, np.int64)
-    counts, arrays = bonds.extract(rows)
-    seg_send = np.bincount(dest, minlength=domain.size).astype(np.int64)
-    bond_send = np.bincount(np.repeat(dest, counts), minlength=domain.size).astype(np.int64)
-    seg_recv = np.empty(domain.size, np.int64)
-    bond_recv = np.empty(domain.size, np.int64)
-    domain.comm.Alltoall(seg_send, seg_recv)
-    domain.comm.Alltoall(bond_send, bond_recv)
-    seg = {"id": row_ids[rows], "count": counts}
-    got_seg = unpack_rows(exchange_rows(domain.comm, pack_rows(seg, np.arange(len(rows)),
-                                                               row_dtype(seg)),
-                                        seg_send, seg_recv, TAG_PD_SEGMENTS))
-    arrays = {k.replace(".", "__"): v for k, v in arrays.items()}
-    got = unpack_rows(exchange_rows(domain.comm,
-                                    pack_rows(arrays, np.arange(int(counts.sum())),
-                                              row_dtype(arrays)),
-                                    bond_send, bond_recv, TAG_PD_BONDS))
-    bonds.keep(~orphan)
-    bonds.append(got_seg["count"], {k.replace("__", "."): np.ascontiguousarray(v)
-                                    for k, v in got.items()})
-    align_rows(bonds, np.concatenate([row_ids[~orphan], got_seg["id"]]), target_ids)
 
 
 @njit(cache=True, error_model="numpy")

@@ -1,0 +1,237 @@
+"""Peridynamic bodies (003 ch. 4-5): ``type = "peridynamic"`` with a bond ``model``.
+
+``integration = "pd"``: the particles are off the grid and move by their own bond forces (003
+Alg. 2: failure, theta or K/F, force eq. 4.1, symplectic Euler, gravity). ``integration =
+"grid"`` (integral-based MPM, 003 ch. 5): the particles are ordinary MPM particles whose
+internal force reaches the grid through the force channel, f_i = sum_p w_ip f_p with
+f_p = V_p sum_q (T_p<X> - T_q<-X>) V_q (eq. 5.2 corrected: the print multiplies by m_p and
+V_p^n and lacks the quadrature volume), instead of -sum_p V_p sigma_p grad w_ip: the material's
+Kirchhoff stress is zero. The PD work itself is the step extension `hpcmpm.pd.extension`.
+
+Models and their constants: hpcmpm/pd/{pmb,lps,correspondence,moduli}.py. 2D volumes are
+areas (unit thickness): the 2D micromodulus c = 12 kappa/(pi h delta^3) times V_q = A h does
+not depend on h, so there is no thickness parameter. The PMB needs the
+Poisson ratio it can represent (3D and plane strain 1/4, plane stress 1/3); ``critical_stretch``
+or ``fracture_energy`` (s0 from G0, moduli.critical_stretch) sets failure; every model also
+breaks a bond past ``max_bond_stretch`` (the PD halo's reach). ``correspondence`` evaluates the
+stress of another material of the scene (``stress_material``, an elastic model of F) at the PD
+deformation gradient, with Silling's zero-energy-mode control ``stabilization`` (times the PMB
+micromodulus of the same bulk modulus).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import SceneError
+from ..pd.families import DEFAULT_HORIZON, INFLUENCES
+from ..pd import moduli
+from ..state import SCALAR, VECTOR, FieldSpec
+from .base import POISSON, YOUNG, ElasticMaterial, Material, Param, choice
+
+
+def _is_bool(value):
+    return None if isinstance(value, bool) else f"must be true or false, got {value!r}"
+
+
+def _is_name(value):
+    return None if isinstance(value, str) and value else f"must be a material name, got {value!r}"
+
+
+def _precracks(value):
+    """2D: a list of segments [[x1, y1], [x2, y2]]; 3D: a list of planar polygons, each a list
+    of >= 3 vertices [x, y, z]."""
+    try:
+        cracks = [np.asarray(c, dtype=np.float64) for c in value]
+    except (TypeError, ValueError):
+        return "must be a list of segments (2D) or polygons (3D) of coordinates"
+    for c in cracks:
+        if c.ndim != 2 or c.shape[1] not in (2, 3) or len(c) < 2 or not np.all(np.isfinite(c)):
+            return "each pre-crack must be a list of points [x, y] (2D) or [x, y, z] (3D)"
+    return None
+
+
+class Peridynamic(Material):
+    """A PD body (module docstring)."""
+
+    name = "peridynamic"
+    parameters = {
+        "model": choice(("pmb", "lps", "correspondence"), "pmb", "bond model"),
+        "integration": choice(("pd", "grid"), "pd",
+                              "pd: own bond forces (003 Alg. 2); grid: integral-based MPM"),
+        "E": YOUNG,
+        "nu": Param(-1.0, 0.5, False, 0.25, doc="Poisson ratio (PMB: 1/4, plane stress 1/3)"),
+        "plane": choice(("strain", "stress"), "strain", "2D: plane strain or plane stress"),
+        "horizon": Param(1.0, math.inf, False, DEFAULT_HORIZON, low_inclusive=True,
+                         doc="horizon delta in particle spacings"),
+        "horizon_length": Param(0.0, math.inf, False, None, doc="horizon delta (length)"),
+        "partial_volumes": Param(-math.inf, math.inf, False, True, check=_is_bool,
+                                 doc="PA-HHB partial volumes at the horizon edge"),
+        "influence": choice(INFLUENCES, "constant", "influence function omega(|X|)"),
+        "critical_stretch": Param(0.0, math.inf, False, math.inf, high_inclusive=True,
+                                  doc="bond failure stretch s0 (003 eq. 4.8)"),
+        "fracture_energy": Param(0.0, math.inf, False, None,
+                                 doc="G0: sets s0 (overrides critical_stretch)"),
+        "max_bond_stretch": Param(0.0, math.inf, False, 1.0,
+                                  doc="stretch beyond which any bond breaks (halo reach)"),
+        "stabilization": Param(0.0, math.inf, False, 0.1, low_inclusive=True,
+                               doc="correspondence: zero-energy-mode penalty, times c"),
+        "stress_material": Param(-math.inf, math.inf, False, None, check=_is_name,
+                                 doc="correspondence: the material whose stress it uses"),
+        "skin": Param(0.0, math.inf, False, 1.0, doc="PD halo skin in particle spacings"),
+        "precracks": Param(-math.inf, math.inf, False, None, check=_precracks,
+                           doc="segments (2D) or planar polygons (3D) no bond crosses"),
+    }
+    # Reference positions (NaN until the first PD phase copies x), the LPS weighted volume,
+    # the damage denominator, and the damage phi (003 eq. 4.8) for frames.
+    fields = {"x0": FieldSpec(VECTOR, "f8", math.nan), "pd_m": FieldSpec(SCALAR),
+              "pd_wvol0": FieldSpec(SCALAR), "damage": FieldSpec(SCALAR)}
+    deformation = "F"
+
+    def __init__(self, spec, dim: int):
+        super().__init__(spec, dim)
+        prm = self.params
+        self.on_grid = prm["integration"] == "grid"
+        E, nu, plane = prm["E"], prm["nu"], prm["plane"]
+        where = f"material {spec.name!r} ({self.name})"
+        if prm["model"] == "pmb":
+            problem = moduli.check_pmb_poisson(dim, nu, plane)
+            if problem:
+                raise SceneError(f"{where}: {problem}")
+        if prm["model"] == "correspondence" and not prm["stress_material"]:
+            raise SceneError(f"{where}: stress_material: missing (the correspondence model "
+                             "evaluates another material's stress)")
+        self.bulk = moduli.bulk_modulus(dim, E, nu, plane)
+        self.mu = moduli.shear_modulus(E, nu)
+        # Lamé pair of the same (3D or plane strain) solid, for the wave speed.
+        self.lam = self.bulk - 2.0 * self.mu / dim
+        self.stress_model = None
+        self.spacing = math.nan
+        self.delta = math.nan
+
+    def configure(self, scene) -> None:
+        prm = self.params
+        where = f"material {self.spec.name!r} ({self.name})"
+        self.spacing = scene.dx / scene.particles_per_cell
+        self.delta = prm["horizon_length"] if prm["horizon_length"] is not None else \
+            prm["horizon"] * self.spacing
+        if self.delta < self.spacing:
+            raise SceneError(f"{where}: horizon_length: {self.delta:g} is below one particle "
+                             f"spacing {self.spacing:g}")
+        if prm["precracks"] is not None:
+            lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
+            for k, c in enumerate(prm["precracks"]):
+                c = np.asarray(c, dtype=np.float64)
+                if c.shape[1] != self.dim or (self.dim == 2 and len(c) != 2) or \
+                        (self.dim == 3 and len(c) < 3):
+                    raise SceneError(f"{where}: precracks[{k}]: must be "
+                                     + ("a segment of two points [x, y]" if self.dim == 2
+                                        else "a planar polygon of >= 3 points [x, y, z]"))
+                if np.any(c < lo) or np.any(c > hi):
+                    raise SceneError(f"{where}: precracks[{k}]: outside the domain")
+        if prm["model"] == "correspondence":
+            from . import make_material
+
+            names = [m.name for m in scene.materials]
+            if prm["stress_material"] not in names:
+                raise SceneError(f"{where}: stress_material: no material named "
+                                 f"{prm['stress_material']!r} (have: {', '.join(names)})")
+            other = make_material(scene.materials[names.index(prm["stress_material"])],
+                                  self.dim)
+            if not isinstance(other, ElasticMaterial):
+                raise SceneError(f"{where}: stress_material: {other.name!r} is not an elastic "
+                                 "model of F alone")
+            self.stress_model = other
+
+    # -- PD constants ------------------------------------------------------------------------
+    def micromodulus(self) -> float:
+        """c of the PMB solid with this bulk modulus (the PMB's own; correspondence
+        stabilization scale)."""
+        prm = self.params
+        return moduli.pmb_micromodulus(self.dim, self.bulk, self.delta, prm["influence"])
+
+    def time_step_micromodulus(self) -> float:
+        """c for the Silling-Askari step: the PMB's own, else the PMB solid with the same
+        P-wave modulus."""
+        if self.params["model"] == "pmb":
+            return self.micromodulus()
+        return moduli.equivalent_micromodulus(self.dim, self.bulk, self.mu, self.delta,
+                                              self.params["influence"])
+
+    def critical_stretch(self) -> float:
+        prm = self.params
+        s0 = prm["critical_stretch"]
+        if prm["fracture_energy"] is not None:
+            s0 = moduli.critical_stretch(self.dim, prm["fracture_energy"],
+                                         self.micromodulus(), self.delta, prm["influence"])
+        return min(s0, prm["max_bond_stretch"])
+
+    def make_model(self):
+        from ..pd.correspondence import Correspondence
+        from ..pd.lps import LPS
+        from ..pd.pmb import PMB
+
+        prm, s0, c_dt = self.params, self.critical_stretch(), self.time_step_micromodulus()
+        if prm["model"] == "pmb":
+            return PMB(self.micromodulus(), s0)
+        if prm["model"] == "lps":
+            return LPS(self.bulk, self.mu, s0, c_dt)
+        other = self.stress_model
+
+        def stress(F, tau):
+            other.update_stress({"F": np.ascontiguousarray(F), "tau": tau}, 0.0)
+
+        return Correspondence(self.dim, stress, prm["stabilization"] * self.micromodulus(), s0,
+                              c_dt)
+
+    def make_extension(self, sim):
+        """The step extension that does the PD work (hpcmpm/pd/extension.py)."""
+        from ..pd.extension import make_extension
+
+        return make_extension(sim, self)
+
+    # -- the Material interface --------------------------------------------------------------
+    def wave_speed(self) -> float:
+        """P-wave speed for the grid CFL bound; 0 off the grid (integration "pd": the PD
+        step rule `dt_limit` bounds the step instead)."""
+        return super().wave_speed() if self.on_grid else 0.0
+
+    def dt_limit(self, dx: float) -> float:
+        """0.8 sqrt(2 rho / sum_q V_q c w/|X|) over a full lattice family (the most bonds a
+        particle has; the issue's rule), the same on every rank."""
+        h = self.spacing
+        r = self.delta + 0.5 * h if self.params["partial_volumes"] else self.delta
+        k = int(math.ceil(r / h))
+        axis = np.arange(-k, k + 1) * h
+        grids = np.meshgrid(*[axis] * self.dim, indexing="ij")
+        dist = np.sqrt(sum(g * g for g in grids)).ravel()
+        dist = dist[(dist > 0) & ((dist < r) if self.params["partial_volumes"] else (dist <= r))]
+        beta = np.minimum(1.0, (self.delta + 0.5 * h - dist) / h) \
+            if self.params["partial_volumes"] else 1.0
+        code = INFLUENCES.index(self.params["influence"])
+        omega = [np.ones_like(dist), self.delta / dist, np.maximum(1 - dist / self.delta, 0),
+                 np.exp(-(dist / self.delta) ** 2)][code]
+        vol = h ** self.dim
+        stiffness = np.sum(vol * self.time_step_micromodulus() * omega * beta / dist)
+        return 0.8 * math.sqrt(2.0 * self.density / stiffness)
+
+    def return_map(self, fields, dt) -> None:
+        """F stays the identity: the PD state lives in the bonds, and a grid-advanced F of a
+        fractured particle must not trip the det F guard (detached particles carry no
+        stress)."""
+        if "F" in fields:
+            F = fields["F"]
+            F[...] = 0.0
+            for a in range(self.dim):
+                F[:, a, a] = 1.0
+
+    def update_stress(self, fields, dt) -> None:
+        """No continuum stress: the bond forces reach the grid through the force channel."""
+        fields["tau"][...] = 0.0
+
+    def energy(self, fields) -> float:
+        """The strain energy is the PD extension's (bonds are not particle fields): 0 here."""
+        return 0.0
+

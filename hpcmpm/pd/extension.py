@@ -1,0 +1,185 @@
+"""The step extension of a peridynamic material (hpcmpm/materials/peridynamic.py).
+
+What the engine calls, and when (Simulation.add_extension; one extension per PD material):
+
+- ``integration = "pd"``: `PDBodyExtension.after_g2p(sim, dt)` after the materials' state
+  update, before migration: 003 Alg. 2 on the material's (off-grid) particles: failure,
+  theta or K/F and the stress, force eq. 4.1, v += dt (f/m + g), x += dt v, damage.
+- ``integration = "grid"``: `IntegralMPMExtension.particle_forces(sim, dt)` during P2G (the
+  force channel, phase "forces"): failure, state and bond forces at x^n, yielded as
+  (start, stop, f) for the material's rows; the grid scatters dt sum_p w_ip f_p (003 eq. 5.2
+  corrected).
+
+Both first bring the side structures up to date with the particle rows (every call, on every
+rank, collectively): bond rows follow the particle rows by id after the engine's sort,
+migration or rebalance (`redistribute_segments` fetches the segments of particles that
+changed rank); the PD halo plan is rebuilt when particles changed rank or one moved more than
+skin/2 since the last build, else only positions are refreshed. Bonds are made once, at the
+first call, in the reference configuration (x0 = x then; x0 is a particle field, NaN until
+set, so particles that become PD later get their x0 when they do).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
+from .families import find_families
+from .geometry import damage, weighted_volume_sums
+from .integrator import PDPoints, bond_forces
+
+log = logging.getLogger(__name__)
+
+
+class PDExtension:
+    """The PD state of one material on one rank (module docstring)."""
+
+    def __init__(self, sim, material):
+        self.sim = sim
+        self.material = material
+        self.group = sim.materials.index(material)
+        self.model = material.make_model()
+        self.persistent = tuple(self.model.persistent_fields)
+        prm = material.params
+        self.radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
+            else material.delta
+        self.halo = PDHalo(sim.domain, self.radius * (1.0 + prm["max_bond_stretch"]),
+                           prm["skin"] * material.spacing)
+        self.bonds = None
+        self.bond_ids = np.empty(0, np.int64)
+        self.pts: PDPoints | None = None
+        self.force = np.empty((0, sim.dim))
+        self.broken = 0
+        self._damage_at = 0
+        self.redistributions = 0
+
+    # -- keeping the side structures in step with the particles -------------------------------
+    def _rows(self):
+        start, stop = self.sim.group_slices[self.group]
+        return start, stop
+
+    def _static(self, start, stop) -> dict[str, np.ndarray]:
+        p = self.sim.particles
+        out = {"id": p["id"][start:stop], "x0": p["x0"][start:stop],
+               "vol0": p["vol0"][start:stop], "x": p["x"][start:stop]}
+        out.update({f"pd_{k}": p[f"pd_{k}"][start:stop] for k in self.persistent})
+        return out
+
+    def _rebuild(self, start, stop) -> None:
+        p = self.sim.particles
+        static = self._static(start, stop)
+        halo = self.halo.build(static["x"], static)
+        cat = lambda k: np.concatenate([static[k], halo[k]])  # noqa: E731
+        self.pts = PDPoints(cat("x0"), cat("x"), cat("vol0"), cat("id"), stop - start,
+                            self.bonds, {k: cat(f"pd_{k}") for k in self.persistent})
+        if self.bonds is not None:
+            self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
+        self.model.resize(len(self.pts.x))
+        del p
+
+    def _initialize(self, start, stop) -> None:
+        """Families in the reference configuration (collective)."""
+        p = self.sim.particles
+        x0 = p["x0"][start:stop]
+        unset = np.isnan(x0[:, 0])
+        x0[unset] = p["x"][start:stop][unset]
+        self._rebuild(start, stop)
+        prm = self.material.params
+        family = find_families(self.pts.x0, self.pts.ids, stop - start, self.material.spacing,
+                               self.material.delta, influence=prm["influence"],
+                               partial_volumes=prm["partial_volumes"],
+                               precracks=prm["precracks"])
+        self.bonds = family.bonds
+        self.pts.bonds = self.bonds
+        self.bond_ids = p["id"][start:stop].copy()
+        self.model.setup(self.pts)
+        for k in self.persistent:
+            p[f"pd_{k}"][start:stop] = self.pts.fields[k][: stop - start]
+        weighted_volume_sums(self.pts.x0, self.pts.vol, self.bonds.offsets, self.bonds.slot,
+                             self.bonds.status, self.bonds.weight, stop - start,
+                             p["pd_wvol0"][start:stop])
+        lonely = self.sim.domain.sum(int(np.sum(self.bonds.counts() == 0)))
+        if lonely and self.sim.domain.rank == 0:
+            log.warning("material %r: %d peridynamic particle(s) have no bond (horizon "
+                        "%.3g, spacing %.3g)", self.material.spec.name, lonely,
+                        self.material.delta, self.material.spacing)
+        # The halo was built before the persistent fields existed: ship them now.
+        self._rebuild(start, stop)
+
+    def prepare(self) -> tuple[int, int]:
+        """Bond rows and halo in step with the particles; positions refreshed. Collective."""
+        start, stop = self._rows()
+        domain = self.sim.domain
+        if self.bonds is None:
+            self._initialize(start, stop)
+            return start, stop
+        ids = self.sim.particles["id"][start:stop]
+        moved = domain.any(not np.array_equal(ids, self.bond_ids))
+        if moved:
+            local = len(ids) == len(self.bond_ids) and \
+                np.array_equal(np.sort(ids), np.sort(self.bond_ids))
+            if domain.min(float(local)) > 0:     # only reordered (a sort): no exchange
+                align_rows(self.bonds, self.bond_ids, ids)
+            else:
+                redistribute_segments(domain, self.bonds, self.bond_ids, ids)
+                self.redistributions += 1
+            self.bond_ids = ids.copy()
+        x = self.sim.particles["x"][start:stop]
+        # Rebuild after a reorder too: the halo plan's send lists name rows.
+        if moved or self.halo.stale(x):
+            self._rebuild(start, stop)
+        else:
+            n = stop - start
+            self.pts.x[:n] = x
+            self.halo.refresh({"x": x}, {"x": self.pts.x[n:]})
+        return start, stop
+
+    def compute_forces(self, start, stop) -> np.ndarray:
+        """Failure, state (with the state halo) and bond forces of the rows [start, stop)."""
+        n = stop - start
+        if len(self.force) != n:
+            self.force = np.empty((n, self.sim.dim))
+        self.broken += bond_forces(self.model, self.pts, self.force, self.halo.refresh_rows(n))
+        return self.force
+
+    def write_damage(self, start, stop) -> None:
+        """phi (003 eq. 4.8) of the rows; only when bonds broke since the last call (the
+        rows' values otherwise stand, whatever the reordering, since they move with their
+        particles)."""
+        if self.broken == self._damage_at:
+            return
+        self._damage_at = self.broken
+        p, b = self.sim.particles, self.bonds
+        damage(self.pts.vol, b.offsets, b.slot, b.status, b.weight, p["pd_wvol0"][start:stop],
+               stop - start, p["damage"][start:stop])
+
+
+class PDBodyExtension(PDExtension):
+    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles."""
+
+    def after_g2p(self, sim, dt: float) -> None:
+        with sim.phase("pd"):
+            start, stop = self.prepare()
+            f = self.compute_forces(start, stop)
+            p = sim.particles
+            v = p["v"][start:stop]
+            v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
+            p["x"][start:stop] += dt * v
+            self.write_damage(start, stop)
+
+
+class IntegralMPMExtension(PDExtension):
+    """``integration = "grid"``: bond forces through the force channel (003 eq. 5.2)."""
+
+    def particle_forces(self, sim, dt: float):
+        start, stop = self.prepare()
+        f = self.compute_forces(start, stop)
+        self.write_damage(start, stop)
+        yield start, stop, f
+
+
+def make_extension(sim, material) -> PDExtension:
+    cls = IntegralMPMExtension if material.on_grid else PDBodyExtension
+    return cls(sim, material)
