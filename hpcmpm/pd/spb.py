@@ -53,6 +53,7 @@ from numba import njit
 from ..errors import SceneError
 from ..kernels.shape import stencil_base, weights
 from ..kernels.transfer import MLS, SCATTER_FORCES
+from ..materials.base import Material
 from ..materials.failure import pd_stress
 from ..parallel.exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
 from ..parallel.pd_halo import TAG_PD_BONDS, PDHalo, align_rows, redistribute_segments
@@ -130,6 +131,10 @@ class SPBExtension:
         self.dt_pd = min(self._pd_time_step(m) for m in mats)
         self.pd_global = 0          # PD particles on all ranks
         self.need_x0 = True
+        # Verification only (the patch test, "G_EE = 0"): convert every SPB particle at the
+        # next step, which a scene cannot ask for (grid_energy must be > 0).
+        self.convert_all = False
+        self.held = 0               # PD particles held by a boundary in the last step
         self.bonds: Bonds | None = None
         self.bond_ids = np.empty(0, np.int64)
         self.halo: PDHalo | None = None
@@ -219,6 +224,10 @@ class SPBExtension:
             start, stop = sim.group_slices[g]
             if stop <= start:
                 continue
+            if self.convert_all:
+                rows = np.arange(start, stop, dtype=np.int64)
+                found.append(rows[p["model"][start:stop] == 0])
+                continue
             if len(self._flag_out) < stop - start:
                 self._flag_out = np.empty(p.capacity, np.int64)
             count, margin = FLAGGED_PARTICLES[self.dim](
@@ -229,6 +238,7 @@ class SPBExtension:
             found.append(self._flag_out[:count].copy())
         rows = np.concatenate(found) if found else np.empty(0, np.int64)
         p["model"][rows] = 1
+        self.convert_all = False
         return rows
 
     # -- bonds ----------------------------------------------------------------------------------
@@ -391,31 +401,54 @@ class SPBExtension:
 
     # -- transfer again -----------------------------------------------------------------------
     def _retransfer(self, sim, pd_rows, dv, dt: float) -> None:
+        """"Transfer again" (module docstring, 4.)."""
         p, grid, domain = sim.particles, sim.grid, sim.domain
-        if "spb_dvelocity" not in grid.kinds:
-            grid.declare("spb_dvelocity", VECTOR)
-        dvel = grid["spb_dvelocity"]
+        for name in ("spb_dvelocity", "spb_reaction"):
+            if name not in grid.kinds:
+                grid.declare(name, VECTOR)
+        dvel, reaction = grid["spb_dvelocity"], grid["spb_reaction"]
         dvel[...] = 0.0
         xn = p["x"][pd_rows] - dt * p["v"][pd_rows]
-        SCATTER_FORCES[self.dim](np.ascontiguousarray(xn),
-                                 np.ascontiguousarray(p["mass"][pd_rows][:, None] * dv),
-                                 sim._static_order, sim.dx, sim.domain_lo, grid.origin, 1.0,
-                                 dvel)
+        impulse = p["mass"][pd_rows][:, None] * dv
+        ok = np.isfinite(impulse).all(axis=1)   # NaN rows: the health check reports them
+        SCATTER_FORCES[self.dim](np.ascontiguousarray(xn[ok]),
+                                 np.ascontiguousarray(impulse[ok]), sim._static_order,
+                                 sim.dx, sim.domain_lo, grid.origin, 1.0, dvel)
         domain.sum_ghosts_to_owners(grid, "spb_dvelocity")
         velocity, mass = grid["velocity"], grid["mass"]
         with np.errstate(divide="ignore", invalid="ignore"):
-            corrected = velocity + np.where(mass[..., None] > 0.0, dvel / mass[..., None], 0.0)
-        sim.apply_grid_boundaries(corrected, dt)
-        np.subtract(corrected, velocity, out=dvel)
-        domain.fill_ghosts(grid, "spb_dvelocity")
+            free = velocity + np.where(mass[..., None] > 0.0, dvel / mass[..., None], 0.0)
+        reaction[...] = free
+        sim.apply_grid_boundaries(reaction, dt)
+        np.subtract(reaction, velocity, out=dvel)      # the corrected grid velocity - v_i
+        np.subtract(reaction, free, out=reaction)      # what the boundaries took away
+        domain.fill_ghosts(grid, "spb_dvelocity", "spb_reaction")
+        # PD particles next to a constrained node (a wall, collider or clamp took part of the
+        # correction there) take the corrected grid velocity like MPM particles: a grid node
+        # cannot hold a particle whose velocity is its own, and the one-sided bond force of a
+        # family cut by the boundary drifts it off the wall otherwise (the fixed end of the
+        # patch-test bar slid away: tests/verification/test_spb_coupled.py).
+        xn = np.ascontiguousarray(p["x"][pd_rows] - dt * p["v"][pd_rows])
+        near = np.zeros(len(pd_rows), np.int8)
+        stencil_touches(xn, reaction.reshape(-1, self.dim), np.array(reaction.shape[:-1]),
+                        grid.origin, sim.domain_lo, sim.dx, sim._static_order, near)
+        held = pd_rows[near == 1]
+        p["v"][held] -= dv[near == 1]
+        p["x"][held] -= dt * dv[near == 1]
         for g in sim._on_grid:
             start, stop = sim.group_slices[g]
             if stop > start:
                 REGATHER[self.dim](p["x"][start:stop], p["v"][start:stop], p["C"][start:stop],
                                    p["F"][start:stop], sim.dinv_factor, sim.dx, sim.domain_lo,
-                                   grid.origin, dt, sim._static_order, dvel)
+                                   grid.origin, dt, sim._static_order, dvel, reaction)
+        if len(held):
+            # They took the boundaries' reaction above; now the rest of the correction.
+            np.subtract(dvel, reaction, out=reaction)
+            gather_increment(p["x"], p["v"], held, dt, reaction.reshape(-1, self.dim),
+                             np.array(reaction.shape[:-1]), grid.origin, sim.domain_lo,
+                             sim.dx, sim._static_order)
+        self.held = len(held)
         # Snow: the corrected trial F_E goes through the clamp again (idempotent elsewhere).
-        from ..materials.base import Material
         for g in self.groups:
             material = sim.materials[g]
             if type(material).return_map is not Material.return_map:
@@ -474,10 +507,12 @@ def bond_damage(offsets, status, weight, n, damage, rows):
 
 
 @njit(cache=True)
-def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel):
+def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel, reaction):
     """The re-transfer's G2P for MLS in 2D (module docstring, 4.): particles with a
     corrected node in their stencil get C += D^-1 sum_i w dv_i (x_i - x^n)^T and F <-
-    (I + dt C_new)(I + dt C_old)^-1 F, x^n = x - dt v. In place."""
+    (I + dt C_new)(I + dt C_old)^-1 F, x^n = x - dt v; the boundaries' reaction r_i to the
+    correction reaches the velocity, v += sum_i w r_i, and the position, x += dt sum_i w r_i.
+    In place."""
     order = len(order)
     inv_dx = 1.0 / dx
     dinv = dinv_factor * inv_dx * inv_dx
@@ -493,7 +528,8 @@ def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel)
         touched = False
         for i in range(s):
             for j in range(s):
-                if dvel[l0 + i, l1 + j, 0] != 0.0 or dvel[l0 + i, l1 + j, 1] != 0.0:
+                if dvel[l0 + i, l1 + j, 0] != 0.0 or dvel[l0 + i, l1 + j, 1] != 0.0 or \
+                        reaction[l0 + i, l1 + j, 0] != 0.0 or reaction[l0 + i, l1 + j, 1] != 0.0:
                     touched = True
         if not touched:
             continue
@@ -501,6 +537,7 @@ def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel)
         w1, _ = weights(xi1, b1, order, inv_dx)
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
         c00 = c01 = c10 = c11 = 0.0
+        r0 = r1 = 0.0
         for i in range(s):
             d0 = e0 + i * dx
             for j in range(s):
@@ -512,6 +549,12 @@ def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel)
                 c01 += u0 * d1
                 c10 += u1 * d0
                 c11 += u1 * d1
+                r0 += wij * reaction[l0 + i, l1 + j, 0]
+                r1 += wij * reaction[l0 + i, l1 + j, 1]
+        v[p, 0] += r0
+        v[p, 1] += r1
+        x[p, 0] += dt * r0
+        x[p, 1] += dt * r1
         # M = (I + dt C_old)^-1
         a00, a01 = 1.0 + dt * C[p, 0, 0], dt * C[p, 0, 1]
         a10, a11 = dt * C[p, 1, 0], 1.0 + dt * C[p, 1, 1]
@@ -536,7 +579,7 @@ def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel)
 
 
 @njit(cache=True)
-def regather_3d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel):
+def regather_3d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel, reaction):
     """3D `regather_2d` (small arrays allocated once per call, not per particle)."""
     order = len(order)
     inv_dx = 1.0 / dx
@@ -560,7 +603,8 @@ def regather_3d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel)
             for j in range(s):
                 for k in range(s):
                     for a in range(3):
-                        if dvel[l0 + i, l1 + j, l2 + k, a] != 0.0:
+                        if dvel[l0 + i, l1 + j, l2 + k, a] != 0.0 or \
+                                reaction[l0 + i, l1 + j, l2 + k, a] != 0.0:
                             touched = True
         if not touched:
             continue
@@ -569,6 +613,7 @@ def regather_3d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel)
         w2, _ = weights(xi2, b2, order, inv_dx)
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
         dC[:, :] = 0.0
+        r0 = r1 = r2 = 0.0
         for i in range(s):
             for j in range(s):
                 for k in range(s):
@@ -578,6 +623,15 @@ def regather_3d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel)
                         u = w * dvel[l0 + i, l1 + j, l2 + k, a]
                         for c in range(3):
                             dC[a, c] += u * d[c]
+                    r0 += w * reaction[l0 + i, l1 + j, l2 + k, 0]
+                    r1 += w * reaction[l0 + i, l1 + j, l2 + k, 1]
+                    r2 += w * reaction[l0 + i, l1 + j, l2 + k, 2]
+        v[p, 0] += r0
+        v[p, 1] += r1
+        v[p, 2] += r2
+        x[p, 0] += dt * r0
+        x[p, 1] += dt * r1
+        x[p, 2] += dt * r2
         for a in range(3):
             for c in range(3):
                 A[a, c] = (1.0 if a == c else 0.0) + dt * C[p, a, c]
@@ -620,3 +674,71 @@ def _inverse3(A, out):
 
 
 REGATHER = {2: regather_2d, 3: regather_3d}
+
+
+@njit(cache=True, inline="always")
+def _node(l, shape, dim):
+    """Row of node ``l`` (block-local indices) in a field flattened to (nodes, d)."""
+    k = l[0]
+    for a in range(1, dim):
+        k = k * shape[a] + l[a]
+    return k
+
+
+@njit(cache=True)
+def stencil_touches(xn, field, shape, origin, domain_lo, dx, order, out):
+    """out[p] = 1 when a node of p's stencil at xn[p] has a nonzero ``field`` (nodes, d)."""
+    order = len(order)
+    dim = xn.shape[1]
+    s = order + 1
+    base = np.empty(dim, np.int64)
+    l = np.empty(dim, np.int64)
+    for p in range(xn.shape[0]):
+        for a in range(dim):
+            base[a] = stencil_base((xn[p, a] - domain_lo[a]) / dx, order) - origin[a]
+        for corner in range(s ** dim):
+            c = corner
+            for a in range(dim):
+                l[a] = base[a] + c % s
+                c //= s
+            k = _node(l, shape, dim)
+            for a in range(dim):
+                if field[k, a] != 0.0:
+                    out[p] = 1
+
+
+@njit(cache=True)
+def gather_increment(x, v, rows, dt, field, shape, origin, domain_lo, dx, order):
+    """v += sum_i w_ip field_i, x += dt (the same) for ``rows``, weights at x^n = x - dt v."""
+    order = len(order)
+    dim = x.shape[1]
+    s = order + 1
+    inv_dx = 1.0 / dx
+    base = np.empty(dim, np.int64)
+    l = np.empty(dim, np.int64)
+    w = np.empty((dim, 4))
+    acc = np.empty(dim)
+    for r in range(rows.shape[0]):
+        p = rows[r]
+        for a in range(dim):
+            xi = (x[p, a] - dt * v[p, a] - domain_lo[a]) * inv_dx
+            b = stencil_base(xi, order)
+            wa, _ = weights(xi, b, order, inv_dx)
+            for k in range(4):
+                w[a, k] = wa[k]
+            base[a] = b - origin[a]
+        acc[:] = 0.0
+        for corner in range(s ** dim):
+            c = corner
+            wt = 1.0
+            for a in range(dim):
+                j = c % s
+                l[a] = base[a] + j
+                wt *= w[a, j]
+                c //= s
+            k = _node(l, shape, dim)
+            for a in range(dim):
+                acc[a] += wt * field[k, a]
+        for a in range(dim):
+            v[p, a] += acc[a]
+            x[p, a] += dt * acc[a]
