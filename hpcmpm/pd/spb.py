@@ -33,6 +33,11 @@ What the engine calls, and when:
      node gets C^{n+1} = C^ + D^-1 sum_i w_ip dv_i (x_i - x^n)^T and F^{n+1} = (I + dt
      C^{n+1}) F^n = (I + dt C^{n+1})(I + dt C^)^-1 F (exact algebra, no stored F^n); MPM
      particles keep v^ (as the thesis). Snow's clamp is applied again to the corrected F_E.
+     Not in the thesis: what the boundaries (walls, colliders, clamps) take from the
+     corrected grid velocity reaches every particle in their reach, and a PD particle whose
+     stencil holds such a node takes the corrected grid velocity instead of its own (a grid
+     node cannot hold a particle whose velocity is its own: the PD end of the patch-test bar
+     slid off its wall, tests/verification/test_spb_coupled.py).
 
 Pay for use: before the first conversion the step adds only the stress-chunk work and one
 scalar grid field; the PD halo, bonds, the re-transfer grid field and the PD time-step bound
@@ -136,6 +141,7 @@ class SPBExtension:
         self.convert_all = False
         self.held = 0               # PD particles held by a boundary in the last step
         self.bonds: Bonds | None = None
+        self._restored: dict | None = None
         self.bond_ids = np.empty(0, np.int64)
         self.halo: PDHalo | None = None
         self._rows = np.arange(sim.stress_chunk, dtype=np.int64)
@@ -252,6 +258,8 @@ class SPBExtension:
         ids = p["id"][pd_rows]
         new_ids = p["id"][new_rows]
         old_ids = ids[~np.isin(ids, new_ids)] if len(new_ids) else ids
+        if self.bonds is None and self._restored is not None:
+            self._bonds_from_checkpoint(old_ids)
         if self.bonds is None:
             self.bonds = Bonds.empty(0, self._state_names())
         moved = domain.any(not np.array_equal(old_ids, self.bond_ids))
@@ -267,8 +275,9 @@ class SPBExtension:
             self.bonds.append(np.zeros(len(new_ids), np.int64),
                               {"partner": np.empty(0, np.int64), "weight": np.empty(0),
                                "status": np.empty(0, np.int8)})
-        align_rows(self.bonds, np.concatenate([self.bond_ids, new_ids]), ids)
-        self.bond_ids = ids.copy()
+        if len(new_ids):
+            align_rows(self.bonds, np.concatenate([self.bond_ids, new_ids]), ids)
+            self.bond_ids = ids.copy()
         if n_new:
             self._new_bonds(sim, pd_rows, np.isin(ids, new_ids))
         x = p["x"][pd_rows]
@@ -453,6 +462,56 @@ class SPBExtension:
             material = sim.materials[g]
             if type(material).return_map is not Material.return_map:
                 material.return_map(sim.material_fields(g), dt)
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def checkpoint_meta(self, sim) -> dict:
+        """The bonds of every rank (gathered on rank 0) and the counters, as checkpoint meta
+        arrays (stored under meta/ with checksums). Collective."""
+        p = sim.particles
+        mine = None
+        if self.bonds is not None:
+            counts, arrays = self.bonds.extract(np.arange(self.bonds.n))
+            mine = (self.bond_ids, counts, arrays)
+        every = sim.domain.gather(mine, root=0)
+        out = {"spb_pd_global": int(self.pd_global), "spb_converted": int(self.converted)}
+        if sim.domain.rank != 0 or all(e is None for e in every):
+            return out
+        parts = [e for e in every if e is not None]
+        out["spb_ids"] = np.concatenate([e[0] for e in parts]).astype(np.int64)
+        out["spb_counts"] = np.concatenate([e[1] for e in parts]).astype(np.int64)
+        for key in parts[0][2]:
+            out["spb_bond_" + key] = np.concatenate([e[2][key] for e in parts])
+        del p
+        return out
+
+    def restore(self, meta: dict) -> None:
+        """After `hpcmpm restart`: counters now, bonds at the first step (by id, on any rank
+        count)."""
+        self.pd_global = int(meta.get("spb_pd_global", 0))
+        self.converted = int(meta.get("spb_converted", 0))
+        self.need_x0 = False
+        if "spb_ids" in meta:
+            self._restored = {k: np.asarray(v) for k, v in meta.items()
+                              if k.startswith("spb_") and isinstance(v, np.ndarray)}
+
+    def _bonds_from_checkpoint(self, ids) -> None:
+        """The segments of the PD particles ``ids`` (this rank's, in row order)."""
+        r = self._restored
+        offsets = np.zeros(len(r["spb_counts"]) + 1, np.int64)
+        np.cumsum(r["spb_counts"], out=offsets[1:])
+        by_id = np.argsort(r["spb_ids"], kind="stable")
+        rows = by_id[np.searchsorted(r["spb_ids"][by_id], ids)]
+        if len(ids) and not np.array_equal(r["spb_ids"][rows], ids):
+            raise RuntimeError("checkpoint holds no bonds for some PD particles")
+        stored = Bonds(offsets, r["spb_bond_partner"], r["spb_bond_weight"],
+                       r["spb_bond_status"],
+                       state={k[len("spb_bond_state."):]: v for k, v in r.items()
+                              if k.startswith("spb_bond_state.")})
+        counts, arrays = stored.extract(rows)
+        self.bonds = Bonds.empty(0, self._state_names())
+        self.bonds.append(counts, arrays)
+        self.bond_ids = np.asarray(ids, np.int64).copy()
+        self._restored = None
 
     # -- diagnostics --------------------------------------------------------------------------
     def margins(self, domain) -> dict:
