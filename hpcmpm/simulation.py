@@ -167,13 +167,12 @@ class Simulation:
         # SPB-MPM (003 eq. 6.10): ``stress_chunk(sim, g, start, stop, tau, dt)`` sees each
         # chunk's Kirchhoff stress between the material kernel and P2G (and may zero rows
         # of it); ``grid_scattered`` names scalar grid fields it scatters there, summed to
-        # owners with the mass and filled back into the ghosts with the velocity.
+        # owners with the mass.
         if hasattr(extension, "stress_chunk"):
             self._stress_hooks.append(extension)
         for name in getattr(extension, "grid_scattered", ()):
             self.grid.declare(name, SCALAR)
             self._scattered.append(name)
-            self._gathered.append(name)
 
     # -- the step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:

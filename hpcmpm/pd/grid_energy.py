@@ -241,7 +241,9 @@ SCATTER_ENERGY = {2: scatter_energy_2d, 3: scatter_energy_3d}
 
 @njit(cache=True)
 def grid_energy_release(grid_energy, grid_mass, l0, out):
-    """G_i = l0 e_i / m_i (0 where m_i = 0), over the flattened block."""
+    """G_i = l0 e_i / m_i (0 where m_i = 0), over the flattened block (``out`` may be
+    ``grid_energy``). Right on owned nodes only, where e and m are complete after the ghost
+    sum: fill the ghosts from the owners afterwards."""
     e = grid_energy.reshape(-1)
     m = grid_mass.reshape(-1)
     o = out.reshape(-1)
@@ -250,12 +252,12 @@ def grid_energy_release(grid_energy, grid_mass, l0, out):
 
 
 @njit(cache=True)
-def flagged_particles_2d(x, v, dt, rows, model, grid_energy, grid_mass, l0, threshold,
-                         domain_lo, dx, origin, out):
+def flagged_particles_2d(x, v, dt, rows, model, grid_G, threshold, domain_lo, dx, origin, out):
     """Rows p in ``rows`` still MPM (model 0) whose cell at x^n = x - dt v has a corner node
-    with G_i = l0 e_i / m_i >= threshold (003 §6.3.1). Writes them into ``out``; returns how
-    many, and the smallest |G_i - threshold| / threshold over the corners looked at (the
-    margin that rank-count round-off must not cross)."""
+    with G_i >= threshold (003 §6.3.1; ``grid_G`` from `grid_energy_release`, complete on
+    ghost nodes too). Writes them into ``out``; returns how many, and the smallest
+    |G_i - threshold| / threshold over the corners looked at (the margin that rank-count
+    round-off must not cross)."""
     count = 0
     margin = np.inf
     inv_dx = 1.0 / dx
@@ -268,10 +270,7 @@ def flagged_particles_2d(x, v, dt, rows, model, grid_energy, grid_mass, l0, thre
         hit = False
         for i in range(2):
             for j in range(2):
-                m = grid_mass[c0 + i, c1 + j]
-                if m <= 0.0:
-                    continue
-                G = l0 * grid_energy[c0 + i, c1 + j] / m
+                G = grid_G[c0 + i, c1 + j]
                 margin = min(margin, abs(G - threshold) / threshold)
                 if G >= threshold:
                     hit = True
@@ -282,8 +281,7 @@ def flagged_particles_2d(x, v, dt, rows, model, grid_energy, grid_mass, l0, thre
 
 
 @njit(cache=True)
-def flagged_particles_3d(x, v, dt, rows, model, grid_energy, grid_mass, l0, threshold,
-                         domain_lo, dx, origin, out):
+def flagged_particles_3d(x, v, dt, rows, model, grid_G, threshold, domain_lo, dx, origin, out):
     """3D `flagged_particles_2d`."""
     count = 0
     margin = np.inf
@@ -299,10 +297,7 @@ def flagged_particles_3d(x, v, dt, rows, model, grid_energy, grid_mass, l0, thre
         for i in range(2):
             for j in range(2):
                 for kk in range(2):
-                    m = grid_mass[c0 + i, c1 + j, c2 + kk]
-                    if m <= 0.0:
-                        continue
-                    G = l0 * grid_energy[c0 + i, c1 + j, c2 + kk] / m
+                    G = grid_G[c0 + i, c1 + j, c2 + kk]
                     margin = min(margin, abs(G - threshold) / threshold)
                     if G >= threshold:
                         hit = True

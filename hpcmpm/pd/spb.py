@@ -6,8 +6,8 @@ What the engine calls, and when:
 
 - ``stress_chunk`` (P2G, per stress chunk of an SPB material; phase "spb_energy"): the energy
   history EE_p = max(EE_p, Phi(sigma+_p)) from the chunk's Kirchhoff stress and the scatter of
-  m_p EE_p into the grid field ``spb_energy`` (grid_energy.py, eq. 6.10), summed to owners and
-  filled back into ghosts with the engine's mass and velocity. With ``coupling =
+  m_p EE_p into the grid field ``spb_energy`` (grid_energy.py, eq. 6.10), summed to owners
+  with the engine's mass (turned into G_i on the owners and filled into the ghosts after G2P). With ``coupling =
   "exclusive"`` the stress of PD particles is zeroed before P2G (their internal force is
   their bonds'); ``"additive"`` keeps it (Alg. 3 as printed).
 - ``after_g2p`` (phases "spb_convert", "pd", "spb_retransfer"), with x = x^ = x^n + dt v^ and
@@ -68,7 +68,8 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .families import find_families
-from .grid_energy import (ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, SCATTER_ENERGY)
+from .grid_energy import (ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, SCATTER_ENERGY,
+                          grid_energy_release)
 from .moduli import bulk_modulus, equivalent_micromodulus, pmb_micromodulus, shear_modulus
 
 log = logging.getLogger(__name__)
@@ -225,6 +226,10 @@ class SPBExtension:
         """Rows of MPM particles of SPB materials in a cell with a flagged corner (eq. 6.10,
         6.3.1); marks them PD."""
         p, grid = sim.particles, sim.grid
+        # G_i on the owners (e and m complete there after the ghost sum), then to the ghost
+        # copies, so every rank flags from the owners' values.
+        grid_energy_release(grid["spb_energy"], grid["mass"], self.l0, grid["spb_energy"])
+        sim.domain.fill_ghosts(grid, "spb_energy")
         found = []
         for k, g in enumerate(self.groups):
             start, stop = sim.group_slices[g]
@@ -238,8 +243,8 @@ class SPBExtension:
                 self._flag_out = np.empty(p.capacity, np.int64)
             count, margin = FLAGGED_PARTICLES[self.dim](
                 p["x"], p["v"], dt, np.arange(start, stop, dtype=np.int64), p["model"],
-                grid["spb_energy"], grid["mass"], self.l0, self.G_EE[k], sim.domain_lo,
-                sim.dx, grid.origin, self._flag_out)
+                grid["spb_energy"], self.G_EE[k], sim.domain_lo, sim.dx, grid.origin,
+                self._flag_out)
             self.flag_margin = min(self.flag_margin, margin)
             found.append(self._flag_out[:count].copy())
         rows = np.concatenate(found) if found else np.empty(0, np.int64)
@@ -383,7 +388,7 @@ class SPBExtension:
         # An inverted PD family (det F^PD <= 0: a particle left with a few bonds that no
         # longer span the space) carries no PD stress, like a detached one, instead of
         # stopping the run: its MPM stress (additive) or its bonds' neighbours still act.
-        inverted = ~np.isfinite(self.A[:n].reshape(n, -1)).all(axis=1)
+        inverted = ~np.isfinite(self.A[:n].reshape(n, self.dim * self.dim)).all(axis=1)
         if inverted.any():
             self.A[:n][inverted] = 0.0
             self.active[:n][inverted] = 0.0

@@ -143,15 +143,14 @@ def test_flags_cells_with_a_flagged_corner():
     dim, dx = 2, 1.0
     shape = (6, 6)
     origin = np.zeros(2, np.int64)
-    m = np.ones(shape)
-    e = np.zeros(shape)
-    e[3, 2] = 10.0                            # only node (3, 2) reaches the threshold
+    G = np.zeros(shape)
+    G[3, 2] = 10.0                            # only node (3, 2) reaches the threshold
     x = np.array([[2.5, 1.5], [2.5, 2.5], [3.5, 2.5], [1.5, 1.5], [3.2, 3.9], [3.5, 0.5]])
     v = np.zeros_like(x)
     model = np.array([0, 0, 0, 0, 0, 1], np.int8)
     out = np.empty(len(x), np.int64)
     count, margin = ge.FLAGGED_PARTICLES[2](x, v, 0.1, np.arange(len(x), dtype=np.int64), model,
-                                         e, m, 1.0, 10.0, np.zeros(dim), dx, origin, out)
+                                            G, 10.0, np.zeros(dim), dx, origin, out)
     # Cells (2,1), (2,2), (3,2) have node (3,2) as a corner; (1,1) and (3,3) do not; the
     # last particle is already PD.
     assert sorted(out[:count].tolist()) == [0, 1, 2]
