@@ -80,6 +80,21 @@ def _bench(args) -> int:
     return bench_command(args)
 
 
+def _render(args) -> int:
+    from . import numba_cache
+
+    numba_cache.configure()  # the 3D renderer's kernel is numba
+    from .viz.render import render_command
+
+    return render_command(args)
+
+
+def _plot(args) -> int:
+    from .viz.diagnostics import plot_command
+
+    return plot_command(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hpcmpm", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"hpcmpm {__version__}")
@@ -129,6 +144,26 @@ def build_parser() -> argparse.ArgumentParser:
     job.add_argument("--output", "-o", help="write the script here instead of stdout")
     job.add_argument("extra", nargs="*", help="extra `hpcmpm run` arguments (after --)")
     job.set_defaults(handler=_jobscript)
+
+    render = verbs.add_parser("render", help="pictures and a movie of a run (docs/output.md)")
+    render.add_argument("run_dir")
+    render.add_argument("--field", metavar="NAME[:COMPONENT]",
+                        help="colour by this frame field (default speed), e.g. material, J, v:x")
+    render.add_argument("--frames", metavar="A:B:K", help="slice of the frames (default all)")
+    render.add_argument("--out", help="folder of the PNGs and movie (default RUN_DIR/render)")
+    render.add_argument("--size", metavar="WxH", help="picture size in pixels (default 960x720)")
+    render.add_argument("--camera", metavar="eye=X,Y,Z;target=X,Y,Z;up=X,Y,Z;fov=DEG",
+                        help="3D camera (default: frames the domain)")
+    render.add_argument("--fps", type=float, default=12.0, help="movie frame rate")
+    render.add_argument("--movie", default="auto", choices=("auto", "mp4", "gif", "webp", "none"),
+                        help="movie format (auto: MP4 if ffmpeg is available, else GIF)")
+    render.add_argument("--quiet", action="store_true", help="no progress bar")
+    render.set_defaults(handler=_render)
+
+    plot = verbs.add_parser("plot", help="time series of a run's diagnostics to PNG + CSV")
+    plot.add_argument("run_dir")
+    plot.add_argument("--out", help="output folder (default RUN_DIR)")
+    plot.set_defaults(handler=_plot)
 
     bench = verbs.add_parser("bench", help="run the benchmarks (see BENCHMARKS.md)",
                              add_help=False)

@@ -12,19 +12,21 @@ from typing import Any
 
 from ..errors import SceneError
 from .base import ElasticMaterial, Material, Param, check_params, lame
-from .failure import no_pd_stress_problem
 from .fixed_corotated import FixedCorotated
+from .herschel_bulkley import HerschelBulkley
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
+from .oldroyd_b import OldroydB
 from .peridynamic import Peridynamic
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
+from .von_mises import VonMises
 from .weakly_compressible import WeaklyCompressible
 
 MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
-                WeaklyCompressible, Peridynamic)
+                WeaklyCompressible, OldroydB, HerschelBulkley, VonMises, Peridynamic)
 }
 
 
@@ -41,10 +43,7 @@ def validate_params(type_name: str, params: dict[str, Any]) -> list[str]:
     cls = MATERIALS.get(type_name)
     if cls is None:
         return [_unknown_type(type_name)]
-    if "failure" in params and "failure" not in cls.parameters:   # SPB-MPM (failure.py)
-        return [no_pd_stress_problem(type_name)] + check_params(
-            cls.parameters, {k: v for k, v in params.items() if k != "failure"})
-    return check_params(cls.parameters, params)
+    return cls.parameter_problems(params)
 
 
 def make_material(spec, dim: int) -> Material:
@@ -59,4 +58,5 @@ def make_material(spec, dim: int) -> Material:
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
            "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
            "Peridynamic",
-           "StableNeoHookean", "Snow", "WeaklyCompressible"]
+           "StableNeoHookean", "Snow", "WeaklyCompressible", "OldroydB", "HerschelBulkley",
+           "VonMises"]

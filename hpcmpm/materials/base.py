@@ -212,12 +212,7 @@ class Material:
     def __init__(self, spec, dim: int):
         if dim not in (2, 3):
             raise ValueError(f"dim must be 2 or 3, got {dim}")
-        params = dict(spec.params)
-        problems = []
-        if "failure" in params and "failure" not in self.parameters:
-            problems.append(no_pd_stress_problem(self.name))   # SPB-MPM, materials/failure.py
-            params.pop("failure")
-        problems += check_params(self.parameters, params)
+        problems = type(self).parameter_problems(dict(spec.params))
         if not (math.isfinite(spec.density) and spec.density > 0.0):
             problems.append(f"density: must be > 0, got {spec.density:g}")
         if problems:
@@ -233,6 +228,18 @@ class Material:
         self.failures: list[str] = []
         # SPB-MPM (003 ch. 6): a `failure` table adds fields and a step extension.
         attach_failure(self)
+
+    @classmethod
+    def parameter_problems(cls, params: dict[str, Any]) -> list[str]:
+        """Problems with a scene's parameters: the schema check, plus any rule between keys a
+        model adds (e.g. "mu and lambda, or E and nu"); `validate_params` and __init__ use
+        it."""
+        params = dict(params)
+        problems = []
+        if "failure" in params and "failure" not in cls.parameters:
+            problems.append(no_pd_stress_problem(cls.name))   # SPB-MPM, materials/failure.py
+            params.pop("failure")
+        return problems + check_params(cls.parameters, params)
 
     def configure(self, scene) -> None:
         """Called once the scene is known (grid spacing, time-step limits): a model that
