@@ -212,10 +212,12 @@ class Runner:
             "rank_counts": np.asarray(domain.allgather(sim.particles.n), dtype=np.int64),
             "needs_sort": np.asarray(domain.allgather(sim.needs_sort), dtype=np.int8),
         }
-        for extension in sim.extensions:     # side structures (SPB-MPM bonds); collective
-            if hasattr(extension, "checkpoint_meta"):
-                meta.update(extension.checkpoint_meta(sim))
         with sim.timers("checkpoint"):
+            # Side structures first (PD bonds): a particle checkpoint that exists has them.
+            for extension in sim.extensions:
+                if hasattr(extension, "write_checkpoint"):
+                    extension.write_checkpoint(self.options.out_dir, sim.step_index,
+                                               self.options.checkpoint_keep)
             self._latest_ckpt = write_checkpoint(self.options.out_dir, domain, sim.particles,
                                                  meta, keep=self.options.checkpoint_keep)
 
@@ -377,7 +379,7 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     sim.step_index = int(meta["step"])
     for extension in sim.extensions:
         if hasattr(extension, "restore"):
-            extension.restore(meta)
+            extension.restore(ckpt)  # side structures (PD bonds) of this checkpoint
     return sim, meta, end_time if end_time is not None else float(meta["end_time"])
 
 

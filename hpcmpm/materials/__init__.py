@@ -57,6 +57,5 @@ def make_material(spec, dim: int) -> Material:
 
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
            "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
-           "Peridynamic",
            "StableNeoHookean", "Snow", "WeaklyCompressible", "OldroydB", "HerschelBulkley",
-           "VonMises"]
+           "VonMises", "Peridynamic"]

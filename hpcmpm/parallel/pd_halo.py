@@ -194,6 +194,31 @@ def redistribute_segments(domain, bonds, row_ids: np.ndarray, target_ids: np.nda
     return target_ids.copy()
 
 
+def route_half_bonds(domain, arrays: dict[str, np.ndarray], owner_ids: np.ndarray
+                     ) -> dict[str, np.ndarray]:
+    """Send half-bond rows (``arrays["owner"]``: the global id of the row's owner particle)
+    to the rank that holds that particle now (``owner_ids``: this rank's PD particle ids).
+    For restarts: the ids of every rank are gathered once. Collective."""
+    held = domain.allgather(np.asarray(owner_ids, np.int64))
+    ids = np.concatenate(held)
+    ranks = np.repeat(np.arange(domain.size), [len(h) for h in held])
+    order = np.argsort(ids, kind="stable")
+    owner = np.asarray(arrays["owner"], np.int64)
+    pos = np.searchsorted(ids, owner, sorter=order)
+    if len(owner) and (np.any(pos >= len(ids)) or np.any(ids[order[np.minimum(
+            pos, len(ids) - 1)]] != owner)):
+        raise RuntimeError("a checkpointed bond names a particle no rank holds")
+    dest = ranks[order[pos]] if len(owner) else np.empty(0, np.int64)
+    rows = np.argsort(dest, kind="stable")
+    send_counts = np.bincount(dest, minlength=domain.size).astype(np.int64)
+    recv_counts = np.empty(domain.size, np.int64)
+    domain.comm.Alltoall(send_counts, recv_counts)
+    packed = {k.replace(".", "__"): np.ascontiguousarray(v) for k, v in arrays.items()}
+    got = unpack_rows(exchange_rows(domain.comm, pack_rows(packed, rows, row_dtype(packed)),
+                                    send_counts, recv_counts, TAG_PD_BONDS))
+    return {k.replace("__", "."): np.ascontiguousarray(v) for k, v in got.items()}
+
+
 def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
     """Permute ``bonds`` (rows named by ``row_ids``) into the order ``target_ids``."""
     sorter = np.argsort(row_ids, kind="stable")
@@ -203,4 +228,5 @@ def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
     bonds.permute(pos)
 
 
-__all__ = ["PDHalo", "migrate_with_bonds", "redistribute_segments", "align_rows"]
+__all__ = ["PDHalo", "migrate_with_bonds", "redistribute_segments", "route_half_bonds",
+           "align_rows"]

@@ -22,11 +22,17 @@ set, so particles that become PD later get their x0 when they do).
 from __future__ import annotations
 
 import logging
+import math
+import os
+from pathlib import Path
 
 import numpy as np
 
+from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
-from .families import find_families
+from .bonds import Bonds
+from .contact import ParticleWalls
+from .families import find_families, half_bonds_per_particle
 from .geometry import damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 
@@ -34,7 +40,8 @@ log = logging.getLogger(__name__)
 
 
 class PDExtension:
-    """The PD state of one material on one rank (module docstring)."""
+    """The PD state of one material on one rank (module docstring); bonds checkpoint with
+    `CheckpointedBonds` (below)."""
 
     def __init__(self, sim, material):
         self.sim = sim
@@ -45,7 +52,8 @@ class PDExtension:
         prm = material.params
         self.radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
             else material.delta
-        self.halo = PDHalo(sim.domain, self.radius * (1.0 + prm["max_bond_stretch"]),
+        # s_reach = the critical stretch, or max_bond_stretch when smaller (the model's s0).
+        self.halo = PDHalo(sim.domain, self.radius * (1.0 + self.model.s0),
                            prm["skin"] * material.spacing)
         self.bonds = None
         self.bond_ids = np.empty(0, np.int64)
@@ -68,7 +76,6 @@ class PDExtension:
         return out
 
     def _rebuild(self, start, stop) -> None:
-        p = self.sim.particles
         static = self._static(start, stop)
         halo = self.halo.build(static["x"], static)
         cat = lambda k: np.concatenate([static[k], halo[k]])  # noqa: E731
@@ -77,10 +84,29 @@ class PDExtension:
         if self.bonds is not None:
             self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
         self.model.resize(len(self.pts.x))
-        del p
+
+    def _check_memory(self, n: int) -> None:
+        """Refuse a horizon whose bonds would not fit: an estimate before allocating, from
+        an interior family's count (collective; the same SceneError on every rank)."""
+        per_particle = half_bonds_per_particle(
+            self.sim.dim, self.material.delta / self.material.spacing,
+            self.material.params["partial_volumes"])
+        need = n * per_particle * (Bonds.empty().resident_bytes_per_bond() + 4)
+        try:
+            memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (ValueError, OSError, AttributeError):
+            memory = math.inf
+        worst = self.sim.domain.max(float(need))
+        if worst > 0.5 * memory:
+            raise SceneError(
+                f"material {self.material.spec.name!r} (peridynamic): horizon: "
+                f"{per_particle} half-bonds per particle need about {worst / 2**30:.1f} GiB "
+                f"on one rank, more than half of its {memory / 2**30:.1f} GiB: lower the "
+                "horizon or use more ranks")
 
     def _initialize(self, start, stop) -> None:
         """Families in the reference configuration (collective)."""
+        self._check_memory(stop - start)
         p = self.sim.particles
         x0 = p["x0"][start:stop]
         unset = np.isnan(x0[:, 0])
@@ -115,6 +141,8 @@ class PDExtension:
         if self.bonds is None:
             self._initialize(start, stop)
             return start, stop
+        if self.pts is None:         # bonds restored from a checkpoint
+            self._rebuild(start, stop)
         ids = self.sim.particles["id"][start:stop]
         moved = domain.any(not np.array_equal(ids, self.bond_ids))
         if moved:
@@ -156,8 +184,84 @@ class PDExtension:
                stop - start, p["damage"][start:stop])
 
 
-class PDBodyExtension(PDExtension):
-    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles."""
+class _HalfBondRows:
+    """Half-bonds as rows for `hpcmpm.io.checkpoint.write_checkpoint` (its particle-set
+    interface): owner id, partner id, weight, status and the per-bond state."""
+
+    def __init__(self, dim: int, arrays: dict[str, np.ndarray]):
+        self.dim = dim
+        self.arrays = arrays
+        self.n = len(arrays["owner"])
+
+    def field_names(self) -> list[str]:
+        return list(self.arrays)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+
+def bonds_folder(out_dir, material_name: str) -> Path:
+    """Where a PD material's bonds are checkpointed, beside the particle checkpoints."""
+    return Path(out_dir) / f"pd_bonds_{material_name}"
+
+
+class CheckpointedBonds:
+    """Bonds in checkpoints (mixin of PDExtension): ``pd_bonds_<material>/ckpt_<step>.h5``
+    beside the particle checkpoint, written before it (a particle checkpoint that exists has
+    its bonds), read back on any rank count and routed to the particles' new owners."""
+
+    def checkpoint_ids(self) -> np.ndarray:
+        """Ids of the rows that own bond segments, in row order (SPB-MPM: its PD particles)."""
+        p = self.sim.particles
+        return p["id"][p["group"] == self.group].copy()
+
+    def write_checkpoint(self, out_dir, step: int, keep: int) -> None:
+        from ..io.checkpoint import write_checkpoint
+
+        b = self.bonds if self.bonds is not None else Bonds.empty(0)
+        arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
+                  "weight": b.weight, "status": b.status,
+                  **{f"state.{k}": v for k, v in b.state.items()}}
+        meta = {"step": int(step), "time": float(self.sim.time),
+                "initialized": self.bonds is not None}
+        write_checkpoint(bonds_folder(out_dir, self.material.spec.name), self.sim.domain,
+                         _HalfBondRows(self.sim.dim, arrays), meta, keep=keep)
+
+    def restore(self, particle_checkpoint) -> None:
+        """Bonds of the particle checkpoint at this path (collective); the first step then
+        builds the halo instead of new families."""
+        from ..io.checkpoint import read_checkpoint
+        from ..parallel.pd_halo import route_half_bonds
+
+        path = Path(particle_checkpoint)
+        rows, meta = read_checkpoint(bonds_folder(path.parent, self.material.spec.name)
+                                     / path.name, self.sim.domain)
+        if not meta.get("initialized", False):
+            return
+        # Rows of this material in their current order, without sorting (a sort now would
+        # change a grid scene's summation order against the uninterrupted run).
+        ids = self.checkpoint_ids()
+        rows = route_half_bonds(self.sim.domain, rows, ids)
+        row_of = {int(i): k for k, i in enumerate(ids)}
+        owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
+        order = np.lexsort((rows["partner"], owner_row))
+        offsets = np.zeros(len(ids) + 1, np.int64)
+        np.cumsum(np.bincount(owner_row, minlength=len(ids)), out=offsets[1:])
+        self.bonds = Bonds(offsets, rows["partner"][order], rows["weight"][order],
+                           rows["status"][order],
+                           state={k[6:]: v[order] for k, v in rows.items()
+                                  if k.startswith("state.")})
+        self.bond_ids = ids
+        self.pts = None
+
+
+class PDBodyExtension(CheckpointedBonds, PDExtension):
+    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles; the
+    domain walls act per particle (pd/contact.py; analytic colliders do not, yet)."""
+
+    def __init__(self, sim, material):
+        super().__init__(sim, material)
+        self.walls = ParticleWalls(sim.scene)
 
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
@@ -165,12 +269,14 @@ class PDBodyExtension(PDExtension):
             f = self.compute_forces(start, stop)
             p = sim.particles
             v = p["v"][start:stop]
+            x = p["x"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
-            p["x"][start:stop] += dt * v
+            self.walls.apply(x, v, dt)
+            x += dt * v
             self.write_damage(start, stop)
 
 
-class IntegralMPMExtension(PDExtension):
+class IntegralMPMExtension(CheckpointedBonds, PDExtension):
     """``integration = "grid"``: bond forces through the force channel (003 eq. 5.2)."""
 
     def particle_forces(self, sim, dt: float):

@@ -67,6 +67,7 @@ from .bonds import Bonds
 from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
+from .extension import CheckpointedBonds
 from .families import find_families
 from .grid_energy import (ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, SCATTER_ENERGY,
                           grid_energy_release)
@@ -78,7 +79,7 @@ SHARED_KEYS = ("coupling", "bond_failure", "critical_stretch", "influence", "hor
                "max_bond_stretch")
 
 
-class SPBExtension:
+class SPBExtension(CheckpointedBonds):
     """SPB-MPM state of one rank (module docstring)."""
 
     grid_scattered = ("spb_energy",)
@@ -90,6 +91,7 @@ class SPBExtension:
         self.groups = [g for g, m in enumerate(sim.materials) if getattr(m, "failure", None)]
         self.index = {g: k for k, g in enumerate(self.groups)}
         mats = [sim.materials[g] for g in self.groups]
+        self.material = mats[0]          # names the bonds' checkpoint folder
         specs = [m.failure for m in mats]
         names = [sim.scene.materials[g].name for g in self.groups]
         problems = []
@@ -142,7 +144,6 @@ class SPBExtension:
         self.convert_all = False
         self.held = 0               # PD particles held by a boundary in the last step
         self.bonds: Bonds | None = None
-        self._restored: dict | None = None
         self.bond_ids = np.empty(0, np.int64)
         self.halo: PDHalo | None = None
         self._rows = np.arange(sim.stress_chunk, dtype=np.int64)
@@ -263,8 +264,6 @@ class SPBExtension:
         ids = p["id"][pd_rows]
         new_ids = p["id"][new_rows]
         old_ids = ids[~np.isin(ids, new_ids)] if len(new_ids) else ids
-        if self.bonds is None and self._restored is not None:
-            self._bonds_from_checkpoint(old_ids)
         if self.bonds is None:
             self.bonds = Bonds.empty(0, self._state_names())
         moved = domain.any(not np.array_equal(old_ids, self.bond_ids))
@@ -469,54 +468,20 @@ class SPBExtension:
                 material.return_map(sim.material_fields(g), dt)
 
     # -- checkpoints ----------------------------------------------------------------------------
-    def checkpoint_meta(self, sim) -> dict:
-        """The bonds of every rank (gathered on rank 0) and the counters, as checkpoint meta
-        arrays (stored under meta/ with checksums). Collective."""
-        p = sim.particles
-        mine = None
-        if self.bonds is not None:
-            counts, arrays = self.bonds.extract(np.arange(self.bonds.n))
-            mine = (self.bond_ids, counts, arrays)
-        every = sim.domain.gather(mine, root=0)
-        out = {"spb_pd_global": int(self.pd_global), "spb_converted": int(self.converted)}
-        if sim.domain.rank != 0 or all(e is None for e in every):
-            return out
-        parts = [e for e in every if e is not None]
-        out["spb_ids"] = np.concatenate([e[0] for e in parts]).astype(np.int64)
-        out["spb_counts"] = np.concatenate([e[1] for e in parts]).astype(np.int64)
-        for key in parts[0][2]:
-            out["spb_bond_" + key] = np.concatenate([e[2][key] for e in parts])
-        del p
-        return out
+    # Bonds checkpoint through pd/extension.CheckpointedBonds (beside the particle checkpoint,
+    # in pd_bonds_<first SPB material>/); EE_p, x0, model and damage are particle fields.
+    def checkpoint_ids(self) -> np.ndarray:
+        return self.sim.particles["id"][self.sim.particles["model"] == 1].copy()
 
-    def restore(self, meta: dict) -> None:
-        """After `hpcmpm restart`: counters now, bonds at the first step (by id, on any rank
-        count)."""
-        self.pd_global = int(meta.get("spb_pd_global", 0))
-        self.converted = int(meta.get("spb_converted", 0))
+    def restore(self, particle_checkpoint) -> None:
+        """Bonds of the checkpoint (collective); the PD count follows from the model field."""
+        super().restore(particle_checkpoint)
+        self.pd_global = int(self.sim.domain.sum(int(np.sum(self.sim.particles["model"] == 1))))
+        self.converted = self.pd_global
         self.need_x0 = False
-        if "spb_ids" in meta:
-            self._restored = {k: np.asarray(v) for k, v in meta.items()
-                              if k.startswith("spb_") and isinstance(v, np.ndarray)}
-
-    def _bonds_from_checkpoint(self, ids) -> None:
-        """The segments of the PD particles ``ids`` (this rank's, in row order)."""
-        r = self._restored
-        offsets = np.zeros(len(r["spb_counts"]) + 1, np.int64)
-        np.cumsum(r["spb_counts"], out=offsets[1:])
-        by_id = np.argsort(r["spb_ids"], kind="stable")
-        rows = by_id[np.searchsorted(r["spb_ids"][by_id], ids)]
-        if len(ids) and not np.array_equal(r["spb_ids"][rows], ids):
-            raise RuntimeError("checkpoint holds no bonds for some PD particles")
-        stored = Bonds(offsets, r["spb_bond_partner"], r["spb_bond_weight"],
-                       r["spb_bond_status"],
-                       state={k[len("spb_bond_state."):]: v for k, v in r.items()
-                              if k.startswith("spb_bond_state.")})
-        counts, arrays = stored.extract(rows)
-        self.bonds = Bonds.empty(0, self._state_names())
-        self.bonds.append(counts, arrays)
-        self.bond_ids = np.asarray(ids, np.int64).copy()
-        self._restored = None
+        if self.bonds is not None and self.failure == "work":
+            for name in WORK_STATE:
+                self.bonds.add_state(name)
 
     # -- diagnostics --------------------------------------------------------------------------
     def margins(self, domain) -> dict:

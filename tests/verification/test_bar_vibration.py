@@ -20,10 +20,11 @@ L, V0, PERIOD = 25.0, 0.1, 10.0
 VCM_AMPLITUDE = 2 * V0 / np.pi
 
 
-def run_bar(cells: int, transfer: str = "mls", history_out: list | None = None):
+def run_bar(cells: int, transfer: str = "mls", history_out: list | None = None,
+            path: str = "inputs/bar_2d.toml"):
     """Period and |v_cm| at half a period, measured from the v_cm(t) history (appended to
-    ``history_out`` as (t, v_cm) arrays when given)."""
-    scene = load_scene("inputs/bar_2d.toml",
+    ``history_out`` as (t, v_cm) arrays when given) of the bar scene at ``path``."""
+    scene = load_scene(path,
                        [f"simulation.dx={L / cells}", "simulation.end_time=8.0",
                         f'simulation.transfer="{transfer}"'])
     history = []
