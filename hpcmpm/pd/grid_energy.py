@@ -140,57 +140,47 @@ def _phi(pp, tr, code, E, nu):
     return ((1.0 + nu) * pp - nu * tr * tr) / (2.0 * E)
 
 
-@njit(cache=True)
-def energy_history_2d(tau, F, rows, EE, code, E, nu):
-    """EE[p] = max(EE[p], Phi(sigma+_p)) for p in ``rows`` of the chunk, sigma = tau / det F.
-
-    tau, F (n, 2, 2) of the chunk; rows (k,) int64 chunk rows of SPB materials; EE (n,)."""
-    for k in range(rows.shape[0]):
-        p = rows[k]
-        J = F[p, 0, 0] * F[p, 1, 1] - F[p, 0, 1] * F[p, 1, 0]
-        inv = 1.0 / J
-        p00, p01, p11 = tensile_part_2d(tau[p, 0, 0] * inv,
-                                        0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv,
-                                        tau[p, 1, 1] * inv)
-        phi = _phi(p00 * p00 + 2.0 * p01 * p01 + p11 * p11, p00 + p11, code, E, nu)
-        if phi > EE[p]:
-            EE[p] = phi
+@njit(cache=True, inline="always")
+def phi_2d(tau, F, p, code, E, nu):
+    """Phi(sigma+) of row p, sigma = tau / det F (2D)."""
+    J = F[p, 0, 0] * F[p, 1, 1] - F[p, 0, 1] * F[p, 1, 0]
+    inv = 1.0 / J
+    p00, p01, p11 = tensile_part_2d(tau[p, 0, 0] * inv,
+                                    0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv,
+                                    tau[p, 1, 1] * inv)
+    return _phi(p00 * p00 + 2.0 * p01 * p01 + p11 * p11, p00 + p11, code, E, nu)
 
 
-@njit(cache=True)
-def energy_history_3d(tau, F, rows, EE, code, E, nu):
-    """3D `energy_history_2d`; tau, F (n, 3, 3)."""
-    for k in range(rows.shape[0]):
-        p = rows[k]
-        J = (F[p, 0, 0] * (F[p, 1, 1] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 1])
-             - F[p, 0, 1] * (F[p, 1, 0] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 0])
-             + F[p, 0, 2] * (F[p, 1, 0] * F[p, 2, 1] - F[p, 1, 1] * F[p, 2, 0]))
-        inv = 1.0 / J
-        p00, p01, p02, p11, p12, p22 = tensile_part_3d(
-            tau[p, 0, 0] * inv, 0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv,
-            0.5 * (tau[p, 0, 2] + tau[p, 2, 0]) * inv, tau[p, 1, 1] * inv,
-            0.5 * (tau[p, 1, 2] + tau[p, 2, 1]) * inv, tau[p, 2, 2] * inv)
-        pp = (p00 * p00 + p11 * p11 + p22 * p22
-              + 2.0 * (p01 * p01 + p02 * p02 + p12 * p12))
-        phi = _phi(pp, p00 + p11 + p22, code, E, nu)
-        if phi > EE[p]:
-            EE[p] = phi
-
-
-ENERGY_HISTORY = {2: energy_history_2d, 3: energy_history_3d}
+@njit(cache=True, inline="always")
+def phi_3d(tau, F, p, code, E, nu):
+    """Phi(sigma+) of row p, sigma = tau / det F (3D)."""
+    J = (F[p, 0, 0] * (F[p, 1, 1] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 1])
+         - F[p, 0, 1] * (F[p, 1, 0] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 0])
+         + F[p, 0, 2] * (F[p, 1, 0] * F[p, 2, 1] - F[p, 1, 1] * F[p, 2, 0]))
+    inv = 1.0 / J
+    p00, p01, p02, p11, p12, p22 = tensile_part_3d(
+        tau[p, 0, 0] * inv, 0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv,
+        0.5 * (tau[p, 0, 2] + tau[p, 2, 0]) * inv, tau[p, 1, 1] * inv,
+        0.5 * (tau[p, 1, 2] + tau[p, 2, 1]) * inv, tau[p, 2, 2] * inv)
+    pp = p00 * p00 + p11 * p11 + p22 * p22 + 2.0 * (p01 * p01 + p02 * p02 + p12 * p12)
+    return _phi(pp, p00 + p11 + p22, code, E, nu)
 
 
 @njit(cache=True)
-def scatter_energy_2d(x, mass, EE, rows, order, dx, domain_lo, origin, grid_energy):
-    """e_i += w_ip m_p EE_p for p in ``rows`` (the numerator of eq. 6.10). ``order`` is
+def energy_history_2d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, origin,
+                      grid_energy):
+    """One pass over a chunk (2D): EE_p = max(EE_p, Phi(sigma+_p)) and e_i += w_ip m_p EE_p
+    (the numerator of eq. 6.10). x, tau, F, mass, EE: the chunk's rows; ``order`` is
     `kernels.transfer.static` of the kernel order."""
     order = len(order)
     inv_dx = 1.0 / dx
     s = order + 1
     lo0, lo1 = domain_lo[0], domain_lo[1]
     o0, o1 = origin[0], origin[1]
-    for k in range(rows.shape[0]):
-        p = rows[k]
+    for p in range(x.shape[0]):
+        phi = phi_2d(tau, F, p, code, E, nu)
+        if phi > EE[p]:
+            EE[p] = phi
         me = mass[p] * EE[p]
         if me == 0.0:
             continue
@@ -207,15 +197,18 @@ def scatter_energy_2d(x, mass, EE, rows, order, dx, domain_lo, origin, grid_ener
 
 
 @njit(cache=True)
-def scatter_energy_3d(x, mass, EE, rows, order, dx, domain_lo, origin, grid_energy):
-    """3D `scatter_energy_2d`."""
+def energy_history_3d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, origin,
+                      grid_energy):
+    """3D `energy_history_2d`."""
     order = len(order)
     inv_dx = 1.0 / dx
     s = order + 1
     lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
     o0, o1, o2 = origin[0], origin[1], origin[2]
-    for k in range(rows.shape[0]):
-        p = rows[k]
+    for p in range(x.shape[0]):
+        phi = phi_3d(tau, F, p, code, E, nu)
+        if phi > EE[p]:
+            EE[p] = phi
         me = mass[p] * EE[p]
         if me == 0.0:
             continue
@@ -236,19 +229,24 @@ def scatter_energy_3d(x, mass, EE, rows, order, dx, domain_lo, origin, grid_ener
                     grid_energy[l0 + i, l1 + j, l2 + kk] += wij * w2[kk]
 
 
-SCATTER_ENERGY = {2: scatter_energy_2d, 3: scatter_energy_3d}
+ENERGY_HISTORY = {2: energy_history_2d, 3: energy_history_3d}
 
 
 @njit(cache=True)
 def grid_energy_release(grid_energy, grid_mass, l0, out):
     """G_i = l0 e_i / m_i (0 where m_i = 0), over the flattened block (``out`` may be
-    ``grid_energy``). Right on owned nodes only, where e and m are complete after the ghost
-    sum: fill the ghosts from the owners afterwards."""
+    ``grid_energy``); returns max_i G_i. Right on owned nodes only, where e and m are complete
+    after the ghost sum: fill the ghosts from the owners afterwards. (A ghost's partial sums
+    may give a larger G, never a missed one: the maximum over all ranks bounds every G_i.)"""
     e = grid_energy.reshape(-1)
     m = grid_mass.reshape(-1)
     o = out.reshape(-1)
+    top = 0.0
     for i in range(e.shape[0]):
         o[i] = l0 * e[i] / m[i] if m[i] > 0.0 else 0.0
+        if o[i] > top:
+            top = o[i]
+    return top
 
 
 @njit(cache=True)

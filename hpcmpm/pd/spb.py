@@ -69,8 +69,7 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
 from .families import find_families
-from .grid_energy import (ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, SCATTER_ENERGY,
-                          grid_energy_release)
+from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
 from .moduli import bulk_modulus, equivalent_micromodulus, pmb_micromodulus, shear_modulus
 
 log = logging.getLogger(__name__)
@@ -142,11 +141,11 @@ class SPBExtension(CheckpointedBonds):
         # Verification only (the patch test, "G_EE = 0"): convert every SPB particle at the
         # next step, which a scene cannot ask for (grid_energy must be > 0).
         self.convert_all = False
+        self.checked = False        # this step's G_i reached a G_EE somewhere (all ranks)
         self.held = 0               # PD particles held by a boundary in the last step
         self.bonds: Bonds | None = None
         self.bond_ids = np.empty(0, np.int64)
         self.halo: PDHalo | None = None
-        self._rows = np.arange(sim.stress_chunk, dtype=np.int64)
         self._flag_out = np.empty(0, np.int64)
         self.converted = 0          # conversions on all ranks, all steps
         self.broken = 0             # half-bonds broken on this rank
@@ -195,13 +194,10 @@ class SPBExtension(CheckpointedBonds):
             x0 = p["x0"][start:stop]
             unset = np.isnan(x0[:, 0])
             x0[unset] = p["x"][start:stop][unset]
-        rows = self._rows[: stop - start]
-        EE = p["EE"][start:stop]
-        ENERGY_HISTORY[self.dim](tau, p["F"][start:stop], rows, EE, self.energy_code[k],
-                                 self.E[k], self.nu[k])
-        SCATTER_ENERGY[self.dim](p["x"][start:stop], p["mass"][start:stop], EE, rows,
-                                 sim._static_order, sim.dx, sim.domain_lo, sim.grid.origin,
-                                 sim.grid["spb_energy"])
+        ENERGY_HISTORY[self.dim](p["x"][start:stop], p["mass"][start:stop], tau,
+                                 p["F"][start:stop], p["EE"][start:stop], self.energy_code[k],
+                                 self.E[k], self.nu[k], sim._static_order, sim.dx,
+                                 sim.domain_lo, sim.grid.origin, sim.grid["spb_energy"])
         if self.exclusive and self.pd_global:
             pd = p["model"][start:stop] == 1
             tau[pd] = 0.0
@@ -211,7 +207,7 @@ class SPBExtension(CheckpointedBonds):
         self.need_x0 = False
         with sim.phase("spb_convert"):
             new_rows = self._convert(sim, dt)
-            n_new = int(sim.domain.sum(len(new_rows)))
+            n_new = int(sim.domain.sum(len(new_rows))) if self.checked else 0
         self.converted += n_new
         self.pd_global += n_new
         if not self.pd_global:
@@ -229,7 +225,13 @@ class SPBExtension(CheckpointedBonds):
         p, grid = sim.particles, sim.grid
         # G_i on the owners (e and m complete there after the ghost sum), then to the ghost
         # copies, so every rank flags from the owners' values.
-        grid_energy_release(grid["spb_energy"], grid["mass"], self.l0, grid["spb_energy"])
+        top = grid_energy_release(grid["spb_energy"], grid["mass"], self.l0,
+                                  grid["spb_energy"])
+        # Nothing can convert unless some G_i reaches the smallest G_EE on some rank (one
+        # reduction; before the first conversion the step ends here).
+        self.checked = self.convert_all or sim.domain.max(top) >= self.G_EE.min()
+        if not self.checked:
+            return np.empty(0, np.int64)
         sim.domain.fill_ghosts(grid, "spb_energy")
         found = []
         for k, g in enumerate(self.groups):

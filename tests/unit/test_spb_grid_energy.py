@@ -8,6 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
+from hpcmpm.kernels.shape import evaluate
 from hpcmpm.kernels.transfer import static
 from hpcmpm.pd import grid_energy as ge
 
@@ -72,16 +73,20 @@ def scatter_G(dim, sigma, code, dx=0.5, n_cells=8, ppc=2, J=1.0):
     F = np.broadcast_to(J ** (1.0 / dim) * np.eye(dim), (n, dim, dim)).copy()
     tau = np.broadcast_to(J * sigma, (n, dim, dim)).copy()
     EE = np.zeros(n)
-    rows = np.arange(n, dtype=np.int64)
-    ge.ENERGY_HISTORY[dim](tau, F, rows, EE, code, E, NU)
     shape = (n_cells + 4,) * dim
     origin = np.full(dim, -2, dtype=np.int64)
     e = np.zeros(shape)
+    ge.ENERGY_HISTORY[dim](x, mass, tau, F, EE, code, E, NU, static(2), dx, np.zeros(dim),
+                           origin, e)
+    # m_i = sum_p w_ip m_p from the shape functions directly (independent of the kernel).
+    base, w, _ = evaluate(x / dx, 2, 1.0 / dx)
     m = np.zeros(shape)
-    ge.SCATTER_ENERGY[dim](x, mass, EE, rows, static(2), dx, np.zeros(dim), origin, e)
-    ge.SCATTER_ENERGY[dim](x, mass, np.ones(n), rows, static(2), dx, np.zeros(dim), origin, m)
+    for p in range(n):
+        for offs in itertools.product(range(3), repeat=dim):
+            node = tuple(base[p, a] + offs[a] - origin[a] for a in range(dim))
+            m[node] += mass[p] * np.prod([w[p, a, offs[a]] for a in range(dim)])
     G = np.empty(shape)
-    ge.grid_energy_release(e, m, L0, G)
+    assert ge.grid_energy_release(e, m, L0, G) == G.max()
     # Node i (global) has full support when every cell it touches is filled: 2 <= i <= n - 2
     # (quadratic B-spline reach 1.5 cells).
     idx = np.arange(shape[0]) + origin[0]
@@ -129,11 +134,13 @@ def test_history_never_decreases(dim):
     EE = np.zeros(n)
     running = np.zeros(n)
     F = np.broadcast_to(np.eye(dim), (n, dim, dim)).copy()
-    rows = np.arange(n, dtype=np.int64)
+    x = rng.uniform(2.0, 3.0, (n, dim))
+    grid = np.zeros((6,) * dim)
     for step in range(20):
         S = random_symmetric(rng, dim, n) * rng.uniform(0.1, 3.0)
         before = EE.copy()
-        ge.ENERGY_HISTORY[dim](S, F, rows, EE, ge.TENSILE_ENERGY, E, NU)
+        ge.ENERGY_HISTORY[dim](x, np.ones(n), S, F, EE, ge.TENSILE_ENERGY, E, NU, static(2),
+                               1.0, np.zeros(dim), np.zeros(dim, np.int64), grid)
         running = np.maximum(running, [phi_reference(s, ge.TENSILE_ENERGY) for s in S])
         assert np.all(EE >= before)
         np.testing.assert_allclose(EE, running, rtol=1e-12, atol=0)
