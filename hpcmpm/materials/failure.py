@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from ..state import SCALAR, VECTOR, FieldSpec
 from .base import Param, choice, table
@@ -115,8 +116,39 @@ def pd_stress(material, fields: dict, F: np.ndarray, tau: np.ndarray) -> None:
     elif isinstance(material, ElasticMaterial):
         material.stress_kernels[material.dim](F, tau, *material.kernel_moduli())
     elif isinstance(material, Snow):
-        FE = np.ascontiguousarray(F @ np.linalg.inv(fields["Fp"]))
+        FE = np.empty_like(F)
+        times_inverse(F, np.ascontiguousarray(fields["Fp"]), FE)
         material._stress(FE, np.ascontiguousarray(fields["Jp"]), tau, material.mu,
                          material.lam, material.xi, material.max_exponent)
     else:
         raise TypeError(no_pd_stress_problem(material.name))
+
+
+@njit(cache=True)
+def times_inverse(A, B, out):
+    """out_p = A_p B_p^-1 for (n, d, d) stacks, d = 2 or 3 (snow's F_E = F^PD F_P^-1)."""
+    d = A.shape[1]
+    for p in range(A.shape[0]):
+        if d == 2:
+            det = B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]
+            i00, i01 = B[p, 1, 1] / det, -B[p, 0, 1] / det
+            i10, i11 = -B[p, 1, 0] / det, B[p, 0, 0] / det
+            for r in range(2):
+                a0, a1 = A[p, r, 0], A[p, r, 1]
+                out[p, r, 0] = a0 * i00 + a1 * i10
+                out[p, r, 1] = a0 * i01 + a1 * i11
+        else:
+            c00 = B[p, 1, 1] * B[p, 2, 2] - B[p, 1, 2] * B[p, 2, 1]
+            c01 = B[p, 1, 2] * B[p, 2, 0] - B[p, 1, 0] * B[p, 2, 2]
+            c02 = B[p, 1, 0] * B[p, 2, 1] - B[p, 1, 1] * B[p, 2, 0]
+            det = B[p, 0, 0] * c00 + B[p, 0, 1] * c01 + B[p, 0, 2] * c02
+            inv = ((c00 / det, (B[p, 0, 2] * B[p, 2, 1] - B[p, 0, 1] * B[p, 2, 2]) / det,
+                    (B[p, 0, 1] * B[p, 1, 2] - B[p, 0, 2] * B[p, 1, 1]) / det),
+                   (c01 / det, (B[p, 0, 0] * B[p, 2, 2] - B[p, 0, 2] * B[p, 2, 0]) / det,
+                    (B[p, 0, 2] * B[p, 1, 0] - B[p, 0, 0] * B[p, 1, 2]) / det),
+                   (c02 / det, (B[p, 0, 1] * B[p, 2, 0] - B[p, 0, 0] * B[p, 2, 1]) / det,
+                    (B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]) / det))
+            for r in range(3):
+                for c in range(3):
+                    out[p, r, c] = (A[p, r, 0] * inv[0][c] + A[p, r, 1] * inv[1][c]
+                                    + A[p, r, 2] * inv[2][c])

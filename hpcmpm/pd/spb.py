@@ -59,7 +59,7 @@ from ..errors import SceneError
 from ..kernels.shape import stencil_base, weights
 from ..kernels.transfer import MLS, SCATTER_FORCES
 from ..materials.base import Material
-from ..materials.failure import pd_stress
+from ..materials.failure import SPB_FIELDS, pd_stress
 from ..parallel.exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
 from ..parallel.pd_halo import TAG_PD_BONDS, PDHalo, align_rows, redistribute_segments
 from ..state import VECTOR
@@ -383,7 +383,9 @@ class SPBExtension(CheckpointedBonds):
             if e > a:
                 material = sim.materials[g]
                 rows = pd_rows[a:e]
-                fields = {name: p[name][rows] for name in material.fields}
+                # The material's own state (snow: Fp, Jp), not the SPB fields.
+                fields = {name: p[name][rows] for name in material.fields
+                          if name not in SPB_FIELDS}
                 pd_stress(material, fields, np.ascontiguousarray(self.F[a:e]), tau[a:e])
         correspondence_force_state(self.F, self.Kinv, tau, self.active, n, self.A)
         # An inverted PD family (det F^PD <= 0: a particle left with a few bonds that no
@@ -430,13 +432,14 @@ class SPBExtension(CheckpointedBonds):
                                  np.ascontiguousarray(impulse[ok]), sim._static_order,
                                  sim.dx, sim.domain_lo, grid.origin, 1.0, dvel)
         domain.sum_ghosts_to_owners(grid, "spb_dvelocity")
-        velocity, mass = grid["velocity"], grid["mass"]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            free = velocity + np.where(mass[..., None] > 0.0, dvel / mass[..., None], 0.0)
-        reaction[...] = free
+        d = self.dim
+        velocity, mass = grid["velocity"].reshape(-1, d), grid["mass"].reshape(-1)
+        # dvel: the momentum correction -> the free velocity correction; reaction: the
+        # corrected velocity, then the boundaries act on it.
+        grid_correction(velocity, mass, dvel.reshape(-1, d), reaction.reshape(-1, d))
         sim.apply_grid_boundaries(reaction, dt)
-        np.subtract(reaction, velocity, out=dvel)      # the corrected grid velocity - v_i
-        np.subtract(reaction, free, out=reaction)      # what the boundaries took away
+        # dvel: corrected - v_i; reaction: what the boundaries took from the correction.
+        boundary_reaction(velocity, dvel.reshape(-1, d), reaction.reshape(-1, d))
         domain.fill_ghosts(grid, "spb_dvelocity", "spb_reaction")
         # PD particles next to a constrained node (a wall, collider or clamp took part of the
         # correction there) take the corrected grid velocity like MPM particles: a grid node
@@ -705,6 +708,29 @@ def _inverse3(A, out):
 
 
 REGATHER = {2: regather_2d, 3: regather_3d}
+
+
+@njit(cache=True)
+def grid_correction(velocity, mass, dmom, corrected):
+    """dmom <- dmom / m (the free velocity correction), corrected = v + it; (nodes, d)."""
+    for i in range(mass.shape[0]):
+        for a in range(velocity.shape[1]):
+            dv = dmom[i, a] / mass[i] if mass[i] > 0.0 else 0.0
+            dmom[i, a] = dv
+            corrected[i, a] = velocity[i, a] + dv
+
+
+@njit(cache=True)
+def boundary_reaction(velocity, dfree, corrected):
+    """After the boundaries acted on ``corrected``: dfree <- corrected - v (the correction
+    the particles take) and corrected <- corrected - (v + the free correction) (the part the
+    boundaries took)."""
+    for i in range(velocity.shape[0]):
+        for a in range(velocity.shape[1]):
+            c = corrected[i, a]
+            free = velocity[i, a] + dfree[i, a]
+            dfree[i, a] = c - velocity[i, a]
+            corrected[i, a] = c - free
 
 
 @njit(cache=True, inline="always")
