@@ -64,6 +64,7 @@ def main() -> None:
         rows[kind] = measure(variant(text, kind) if kind != "as_written" else
                              tomli_w.dumps(tomllib.loads(text)), args.scene, args.steps,
                              args.warm, comm)
+    totals = {kind: sim.domain.sum(sim.particles.n) for kind, (_, sim) in rows.items()}
     if comm.rank:
         return
     base = rows["mpm"][0]
@@ -75,7 +76,7 @@ def main() -> None:
         print(f"{kind:10s} {1e3 * per_step:8.2f} ms/step ({per_step / base - 1:+.1%} vs MPM); "
               f"eq. 6.10 + flags {share('spb_energy', 'spb_convert'):.1%}, PD "
               f"{share('pd'):.1%}, re-transfer {share('spb_retransfer'):.1%}; PD particles "
-              f"{ext.pd_global if ext else 0} of {sim.domain.sum(sim.particles.n)}")
+              f"{ext.pd_global if ext else 0} of {totals[kind]}")
 
 
 if __name__ == "__main__":
