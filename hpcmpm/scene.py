@@ -23,6 +23,7 @@ CONDITIONS = ("sticky", "slip", "separate")
 BODY_SHAPES = ("box", "sphere", "cylinder", "mesh")
 COLLIDER_SHAPES = ("half_space", "sphere", "box", "cylinder")
 FACE_NAMES = ("x_lower", "x_upper", "y_lower", "y_upper", "z_lower", "z_upper")
+AXIS_NAMES = ("x", "y", "z")
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,9 @@ class Scene:
     parallel: ParallelSpec
     integrator: str = "explicit"
     solver: SolverSpec = SolverSpec()
+    # Periodic axes as sorted indices (0 = x): particles leaving through one face re-enter
+    # through the other, the grid wraps, the walls of those faces do not act.
+    periodic: tuple[int, ...] = ()
 
     def material_index(self, name: str) -> int:
         return [m.name for m in self.materials].index(name)
@@ -253,6 +257,27 @@ class Checker:
         return self.vector(table, key, path, 3)
 
 
+class CommandLineChecker(Checker):
+    """The scene's checks for values given as command-line options: the same bounds and words,
+    the option in place of the file and key (``--end-time: must be > 0.0, got -1.0``)."""
+
+    def __init__(self):
+        super().__init__("command line")
+
+    def problem(self, path: str, message: str) -> None:
+        self.problems.append(f"{path}: {message}")
+
+    def option(self, name: str, value, **bounds):
+        """``value`` of option ``name`` checked like a scene number (None: not given)."""
+        if value is None:
+            return None
+        return self.number({name: value}, name, "", **bounds)
+
+    def raise_problems(self) -> None:
+        if self.problems:
+            raise SceneError(self.problems)
+
+
 def _join(path: str, key) -> str:
     return f"{path}.{key}" if path else str(key)
 
@@ -284,33 +309,62 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]
             value = text
         parts = key.split(".")
         node: Any = raw
-        ok = True
-        for part in parts[:-1]:
-            if isinstance(node, list) and part.isdigit() and int(part) < len(node):
-                node = node[int(part)]
+        problem = None
+        for depth, part in enumerate(parts[:-1]):
+            if isinstance(node, list):
+                index, problem = _entry_index(node, part, parts[depth - 1] if depth else "")
+                if problem:
+                    break
+                node = node[index]
             elif isinstance(node, dict):
                 node = node.setdefault(part, {})
             else:
-                problems.append(f"{file}: --set {key}: no such key")
-                ok = False
+                problem = "no such key"
                 break
-        if not ok:
-            continue
         last = parts[-1]
-        if isinstance(node, list) and last.isdigit() and int(last) < len(node):
-            node[int(last)] = value
-        elif isinstance(node, dict):
+        if problem is None and isinstance(node, list):
+            index, problem = _entry_index(node, last, parts[-2] if len(parts) > 1 else "")
+            if problem is None:
+                node[index] = value
+        elif problem is None and isinstance(node, dict):
             node[last] = value
-        else:
-            problems.append(f"{file}: --set {key}: no such key")
+        elif problem is None:
+            problem = "no such key"
+        if problem:
+            problems.append(f"{file}: --set {key}: {problem}")
     return problems
+
+
+# The name an array entry gets when it has none (the sections' own defaults, e.g. "body0").
+DEFAULT_ENTRY_NAMES = {"bodies": "body", "colliders": "collider", "prescribed": "prescribed"}
+
+
+def _entry_index(entries: list, part: str, section: str) -> tuple[int, str | None]:
+    """Index of an array-of-tables entry named by ``part``: its position (``bodies.0``) or its
+    ``name`` (``materials.rubber``, ``bodies.body1`` for an unnamed second body)."""
+    if part.isdigit():
+        if int(part) < len(entries):
+            return int(part), None
+        return 0, f"no entry {part} ({section} has {len(entries)})"
+    names = [e.get("name", f"{DEFAULT_ENTRY_NAMES.get(section, section)}{i}")
+             if isinstance(e, dict) else None for i, e in enumerate(entries)]
+    if part in names:
+        return names.index(part), None
+    known = ", ".join(str(n) for n in names if n is not None)
+    return 0, f"no entry named {part!r} in {section} (names: {known}; or give an index)"
 
 
 # -- sections ---------------------------------------------------------------------------------
 SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "transfer",
-                   "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity", "integrator")
+                   "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity", "integrator",
+                   "periodic")
 SOLVER_MODES = ("linearized", "newton")
 PRECONDITIONERS = ("jacobi", "none")
+
+
+# Cell indices come from x / dx in float64: beyond 2**53 cells along an axis neighbouring
+# cells are no longer distinct numbers.
+MAX_CELLS_PER_AXIS = 2.0 ** 53
 
 
 def _simulation(c: Checker, raw: dict) -> dict:
@@ -321,7 +375,8 @@ def _simulation(c: Checker, raw: dict) -> dict:
         return {"dim": None, "domain_lo": None, "domain_hi": None, "dx": None,
                 "particles_per_cell": None, "kernel": None, "transfer": None,
                 "flip_alpha": None, "cfl": None, "dt": None, "max_dt": None,
-                "end_time": None, "gravity": None, "integrator": None}
+                "end_time": None, "gravity": None, "integrator": None,
+                "periodic": ()}
     c.keys(sim, "simulation", SIMULATION_KEYS)
     p = "simulation"
     out: dict[str, Any] = {}
@@ -341,6 +396,10 @@ def _simulation(c: Checker, raw: dict) -> dict:
             c.problem(f"{p}.domain.upper", f"must exceed domain.lower in every component, "
                                            f"got lower {list(lo)}, upper {list(hi)}")
             lo = hi = None
+        elif lo and hi and not all(math.isfinite(h - l) for l, h in zip(lo, hi)):
+            c.problem(f"{p}.domain", f"extent upper - lower overflows a float64, got lower "
+                                     f"{list(lo)}, upper {list(hi)}")
+            lo = hi = None
     out["domain_lo"], out["domain_hi"] = lo, hi
     out["dx"] = c.number(sim, "dx", p, low=0.0)
     out["particles_per_cell"] = c.number(sim, "particles_per_cell", p, 2, low=1, low_open=False,
@@ -353,15 +412,56 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out["max_dt"] = c.number(sim, "max_dt", p, None, low=0.0)
     out["end_time"] = c.number(sim, "end_time", p, low=0.0)
     out["gravity"] = c.vector(sim, "gravity", p, dim, (0.0,) * dim) if dim else None
+    out["periodic"] = _periodic(c, sim, p, dim)
     from .solvers import INTEGRATORS
 
     out["integrator"] = c.string(sim, "integrator", p, "explicit", tuple(INTEGRATORS))
     if out["dx"] and lo and hi:
         cells = [(h - l) / out["dx"] for l, h in zip(lo, hi)]
-        if any(abs(n - round(n)) > 1e-6 * max(n, 1) for n in cells):
+        extents = [h - l for l, h in zip(lo, hi)]
+        if any(n < 1 - 1e-6 for n in cells):
+            c.problem(f"{p}.dx", f"must not exceed the smallest domain extent {min(extents):g} "
+                                 f"(the grid needs a cell along every axis), got {out['dx']:g}")
+        elif not all(n <= MAX_CELLS_PER_AXIS for n in cells):
+            c.problem(f"{p}.dx", f"gives {max(cells):.3g} cells along an axis, more than the "
+                                 f"2**53 a float64 position can tell apart, got {out['dx']:g}")
+        elif any(abs(n - round(n)) > 1e-6 * max(n, 1) for n in cells):
             c.problem(f"{p}.dx", f"must divide the domain size evenly, got {out['dx']} for "
                                  f"extent {[h - l for l, h in zip(lo, hi)]}")
     return out
+
+
+def _periodic(c: Checker, sim: dict, p: str, dim) -> tuple[int, ...]:
+    """``periodic = ["x", ...]``: a subset of the axes, each named once; sorted indices."""
+    value = sim.get("periodic", [])
+    where = f"{p}.periodic"
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        c.problem(where, f"must be an array of axis names, got {_describe(value)}")
+        return ()
+    names = AXIS_NAMES[:dim] if dim else AXIS_NAMES
+    unknown = [v for v in value if v not in names]
+    if unknown:
+        c.problem(where, f"unknown axis {unknown[0]!r} (valid: {', '.join(names)})")
+        return ()
+    repeated = sorted({v for v in value if value.count(v) > 1})
+    if repeated:
+        c.problem(where, f"axis {repeated[0]!r} named more than once")
+        return ()
+    return tuple(sorted(names.index(v) for v in value))
+
+
+def _check_periodic_walls(c: Checker, raw: dict, periodic: tuple[int, ...]) -> None:
+    """A face of a periodic axis is no wall: setting its condition explicitly is a mistake."""
+    walls = raw.get("walls")
+    if not isinstance(walls, dict):
+        return
+    for axis in periodic:
+        for side in ("lower", "upper"):
+            name = f"{AXIS_NAMES[axis]}_{side}"
+            if name in walls:
+                c.problem(f"walls.{name}", f"axis {AXIS_NAMES[axis]!r} is periodic "
+                                           f"(simulation.periodic): its faces are not walls; "
+                                           f"remove walls.{name} or the axis")
 
 
 def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
@@ -382,30 +482,32 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
 
 
 def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
-                         transfer, prescribed, integrator) -> None:
+                         transfer, prescribed, integrator, dim) -> None:
     """Each requested field must exist in this scene's particles (the writer would skip it
-    silently otherwise): a core field, a field of one of its materials, ``C`` for APIC/MLS,
-    ``prescribed`` when there are prescribed sets."""
-    from .materials import MATERIALS
+    silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
+    what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
+    from .materials import make_material
+    from .simulation import deformation_mode, particle_field_specs
+    from .solvers import INTEGRATORS
     from .state import CORE_FIELDS
 
-    from .simulation import deformation_fields, deformation_mode
-    from .solvers import INTEGRATORS
-
-    if transfer is None or integrator is None or not materials_complete:
+    if transfer is None or integrator is None or not materials_complete or not dim:
         return  # a bad material or transfer is reported already; the list would mislead
-    valid = list(CORE_FIELDS)
-    # The deformation state (F, J, or L with F and/or J); tau, the Kirchhoff stress, is
-    # computed for output.
-    classes = [MATERIALS[m.type] for m in materials]
-    mode = deformation_mode(classes, INTEGRATORS[integrator].needs_velocity_gradient)
-    valid += list(deformation_fields(classes, mode)) + ["tau"]
-    for m in materials:
-        valid += [f for f in MATERIALS[m.type].fields if f not in valid]
-    if transfer in ("apic", "mls"):
-        valid.append("C")
-    if prescribed:
-        valid.append("prescribed")
+    # Instances, as the run makes them: a material may declare fields by its parameters (J2:
+    # s_zz in 2D only, T with a specific heat); a parameter combination its constructor
+    # refuses is reported here, in the scene's format.
+    instances = []
+    for i, m in enumerate(materials):
+        try:
+            instances.append(make_material(m, dim))
+        except SceneError as exc:
+            for problem in exc.problems:
+                c.problem(f"materials[{i}]", problem)
+    if len(instances) < len(materials):
+        return
+    mode = deformation_mode(instances, INTEGRATORS[integrator].needs_velocity_gradient)
+    valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, transfer,
+                                                          bool(prescribed))) + ["tau"]
     for i, name in enumerate(output.fields):
         if name not in valid:
             close = difflib.get_close_matches(name, valid, n=1)
@@ -453,7 +555,8 @@ def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
         p = f"materials[{i}]"
         name = c.string(m, "name", p)
         mtype = c.string(m, "type", p, choices=sorted(MATERIALS))
-        density = c.number(m, "density", p, low=0.0)
+        # high=inf: finite (the Checker admits +inf only where no upper bound is given)
+        density = c.number(m, "density", p, low=0.0, high=math.inf)
         if name in names:
             c.problem(f"{p}.name", f"duplicate material name {name!r}")
         names.add(name)
@@ -714,12 +817,13 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     materials = _materials(c, raw)
     bodies = _bodies(c, raw, dim, materials, sim["domain_lo"], sim["domain_hi"], base_dir)
     walls = _walls(c, raw, dim)
+    _check_periodic_walls(c, raw, sim["periodic"])
     colliders = _colliders(c, raw, dim)
     prescribed = _prescribed(c, raw, dim)
     entries = raw.get("materials")
     _check_output_fields(c, output, materials,
                          isinstance(entries, list) and len(entries) == len(materials),
-                         sim["transfer"], prescribed, sim["integrator"])
+                         sim["transfer"], prescribed, sim["integrator"], sim["dim"])
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)

@@ -13,7 +13,7 @@ import logging
 import numpy as np
 
 from .boundaries import build_boundaries, build_prescribed
-from .errors import InstabilityError
+from .errors import InstabilityError, SceneError
 from .kernels.grid import update_velocity
 from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
@@ -51,6 +51,38 @@ def deformation_fields(materials, mode: str) -> dict[str, FieldSpec]:
     return specs
 
 
+def configured_materials(scene, dim: int) -> list[Material]:
+    """The scene's materials, made and configured against the scene; a problem only the whole
+    scene shows (a horizon below the spacing, a material named by another that is not there)
+    is a `SceneError` in the scene's format: ``{file}: materials[i]: ...``."""
+    materials = []
+    for i, spec in enumerate(scene.materials):
+        try:
+            material = make_material(spec, dim)
+            material.configure(scene)
+        except SceneError as exc:
+            raise SceneError([f"{scene.path}: materials[{i}]: {p}" for p in exc.problems]) \
+                from None
+        materials.append(material)
+    return materials
+
+
+def particle_field_specs(materials, mode: str, transfer: str,
+                         prescribed: bool) -> dict[str, FieldSpec]:
+    """The particle fields a scene declares besides the core ones: its deformation state in
+    ``mode``, its materials' own fields, ``C`` for APIC/MLS, ``prescribed`` when it has
+    prescribed sets. One source for `Simulation.particle_fields` and the scene's check of
+    ``output.fields``; ``materials`` are material classes or instances."""
+    specs = deformation_fields(materials, mode)
+    for material in materials:
+        specs.update(material.fields)
+    if SCHEMES[transfer] >= APIC:
+        specs["C"] = FieldSpec(TENSOR)
+    if prescribed:
+        specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
+    return specs
+
+
 class Simulation:
     """Particles, grid block, materials and boundaries of one rank, and the step over them."""
 
@@ -83,9 +115,7 @@ class Simulation:
         self._static_split = static(self.split_force)
         self.gravity = np.zeros(3)
         self.gravity[: self.dim] = scene.gravity
-        self.materials = [make_material(spec, self.dim) for spec in scene.materials]
-        for material in self.materials:
-            material.configure(scene)
+        self.materials = configured_materials(scene, self.dim)
         self.integrator = make_integrator(getattr(scene, "integrator", "explicit"), self)
         # F, J alone, or the velocity gradient L (`deformation_mode`).
         self.deformation = deformation_mode(self.materials,
@@ -105,6 +135,7 @@ class Simulation:
         self._dummy_C = np.zeros((1, self.dim, self.dim))
         self.stress_chunk = self.stress_chunk_bytes // (8 * self.dim * self.dim)
         self._tau = np.empty((self.stress_chunk, self.dim, self.dim))
+        self._zero_tau = np.zeros((0, self.dim, self.dim))  # scatter_mass_momentum only
         self._bad = np.empty(MAX_REPORTED, dtype=np.int64)
         self._keys = np.empty(0, dtype=np.int64)
         self._order = np.empty(0, dtype=np.int64)
@@ -145,14 +176,8 @@ class Simulation:
     # -- set-up ----------------------------------------------------------------------------
     def particle_fields(self) -> dict[str, FieldSpec]:
         """Union of the fields the materials and the chosen features declare."""
-        specs = deformation_fields(self.materials, self.deformation)
-        for material in self.materials:
-            specs.update(material.fields)
-        if self.scheme >= APIC:
-            specs["C"] = FieldSpec(TENSOR)
-        if self.scene.prescribed:
-            specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
-        return specs
+        return particle_field_specs(self.materials, self.deformation, self.scene.transfer,
+                                    bool(self.scene.prescribed))
 
     def add_extension(self, extension) -> None:
         """Add a step extension: its ``particle_forces(sim, dt)`` (if any) yields
@@ -310,6 +335,29 @@ class Simulation:
                 for clamp in self.prescribed:
                     clamp.scatter(p, grid, self.order)
 
+    def scatter_mass_momentum(self) -> None:
+        """P2G of mass and momentum only (no stress): the semi-implicit step finds the
+        stress impulse in its solve. The P2G kernel with dt = 0 and a zero stress adds none."""
+        p, grid = self.particles, self.grid
+        with self.phase("p2g"):
+            if len(self._zero_tau) < p.n:
+                self._zero_tau = np.zeros((p.capacity, self.dim, self.dim))
+            impulse = grid["impulse"] if self.split_force else grid["momentum"]
+            C = p["C"] if "C" in p else None
+            ranges = [(0, p.n)] if self._all_on_grid else \
+                [self.group_slices[g] for g in self._on_grid]
+            for start, stop in ranges:
+                if stop > start:
+                    SCATTER[self.dim](
+                        p["x"][start:stop], p["v"][start:stop],
+                        self._dummy_C if C is None else C[start:stop], p["mass"][start:stop],
+                        p["vol0"][start:stop], self._zero_tau[: stop - start],
+                        self._static_scheme, self._static_order, self.dinv_factor, self.dx,
+                        self.domain_lo, grid.origin, 0.0, self._static_split, grid["mass"],
+                        grid["momentum"], impulse)
+            for clamp in self.prescribed:
+                clamp.scatter(p, grid, self.order)
+
     def scatter_forces(self, dt: float) -> None:
         """The force channel: per-particle forces of the step extensions (peridynamic bond
         forces of integral-based MPM, 003 eq. 5.2) reach the grid as ``dt sum_p w_ip f_p``."""
@@ -430,10 +478,13 @@ class Simulation:
         speed, nbad = scan_health(p["x"], p["v"], p[kinds[0]], self._bad, MAX_REPORTED)
         if nbad == 0 and len(kinds) > 1:
             speed, nbad = scan_health(p["x"], p["v"], p[kinds[1]], self._bad, MAX_REPORTED)
-        total_bad = self.domain.sum(int(nbad))
+        # One allreduce for the step's global decisions (speed, health, stop, far particles).
+        speed, total_bad = self.domain.agree(p, speed, int(nbad))
+        if self.domain.moved_in_agree:  # far jumps delivered: the order is stale
+            self._needs_sort = True
         if total_bad:
             self.raise_instability(int(nbad), total_bad)
-        return self.domain.max(speed)
+        return speed
 
     def raise_instability(self, nbad_local: int, total_bad: int) -> None:
         p = self.particles
@@ -469,9 +520,15 @@ class Simulation:
         local[8] = sum(m.energy(self.material_fields(g)) for g, m in enumerate(self.materials)
                        if self.group_slices[g][1] > self.group_slices[g][0])
         total = self.domain.sum(local)
-        return {
+        out = {
             "mass": total[0],
             "momentum": total[1:4].copy(), "angular_momentum": total[4:7].copy(),
             "kinetic_energy": total[7], "elastic_energy": total[8],
             "total_energy": total[7] + total[8],
         }
+        # The integrator's own figures (semi-implicit: CG iterations per step since the
+        # previous call, i.e. since the previous frame in a run); the same on every rank.
+        report = getattr(self.integrator, "diagnostics", None)
+        if report is not None:
+            out.update(report())
+        return out

@@ -12,19 +12,19 @@ from __future__ import annotations
 import numpy as np
 
 from .colliders import Collider
-from .prescribed import (PrescribedSet, apply_prescribed, mark_nodes, mark_prescribed_particles,
-                         parameters)
+from .prescribed import PrescribedSet, mark_prescribed_particles
 from .walls import Walls
 
 
 def build_boundaries(scene) -> list:
-    """Walls (when the scene has them) followed by the colliders, in scene order."""
+    """Walls (when the scene has them) followed by the colliders, in scene order. The faces
+    of periodic axes are not walls."""
     out: list = []
     walls = getattr(scene, "walls", None)
     if walls is not None and walls.faces:
         n_cells = np.rint((np.asarray(scene.domain_hi) - np.asarray(scene.domain_lo))
                           / scene.dx).astype(np.int64)
-        out.append(Walls(walls.faces, n_cells))
+        out.append(Walls(walls.faces, n_cells, getattr(scene, "periodic", ())))
     out.extend(Collider(spec, scene.dim) for spec in getattr(scene, "colliders", ()))
     return out
 
@@ -34,5 +34,5 @@ def build_prescribed(scene) -> list[PrescribedSet]:
     return [PrescribedSet(spec, i, scene.dim) for i, spec in enumerate(scene.prescribed)]
 
 
-__all__ = ["Collider", "PrescribedSet", "Walls", "apply_prescribed", "build_boundaries",
-           "build_prescribed", "mark_nodes", "mark_prescribed_particles", "parameters"]
+__all__ = ["Collider", "PrescribedSet", "Walls", "build_boundaries", "build_prescribed",
+           "mark_prescribed_particles"]

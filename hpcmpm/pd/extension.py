@@ -53,8 +53,9 @@ class PDExtension:
         self.radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
             else material.delta
         # s_reach = the critical stretch, or max_bond_stretch when smaller (the model's s0).
-        self.halo = PDHalo(sim.domain, self.radius * (1.0 + self.model.s0),
-                           prm["skin"] * material.spacing)
+        self.reach = self.radius * (1.0 + self.model.s0)
+        self.skin = prm["skin"] * material.spacing
+        self.halo: PDHalo | None = None       # made at the first step (the domain exists)
         self.bonds = None
         self.bond_ids = np.empty(0, np.int64)
         self.pts: PDPoints | None = None
@@ -138,6 +139,8 @@ class PDExtension:
         """Bond rows and halo in step with the particles; positions refreshed. Collective."""
         start, stop = self._rows()
         domain = self.sim.domain
+        if self.halo is None:
+            self.halo = PDHalo(domain, self.reach, self.skin)
         if self.bonds is None:
             self._initialize(start, stop)
             return start, stop
@@ -155,6 +158,7 @@ class PDExtension:
                 self.redistributions += 1
             self.bond_ids = ids.copy()
         x = self.sim.particles["x"][start:stop]
+        moved = self._follow_periodic_wrap(start, stop) or moved
         # Rebuild after a reorder too: the halo plan's send lists name rows.
         if moved or self.halo.stale(x):
             self._rebuild(start, stop)
@@ -163,6 +167,25 @@ class PDExtension:
             self.pts.x[:n] = x
             self.halo.refresh({"x": x}, {"x": self.pts.x[n:]})
         return start, stop
+
+    def _follow_periodic_wrap(self, start, stop) -> bool:
+        """Along periodic axes the engine wraps x into the domain; the reference position
+        follows by whole periods (x - x0 kept within half a period), so bond vectors X between
+        a particle and its partners' images stay those of the reference configuration.
+        Returns whether any rank shifted one (a halo rebuild; collective)."""
+        domain = self.sim.domain
+        periodic = np.asarray(getattr(domain, "periodic", np.zeros(self.sim.dim, bool)))
+        if not periodic.any():
+            return False
+        p = self.sim.particles
+        length = np.where(periodic, domain.n_cells * domain.dx, 0.0)
+        axes = np.flatnonzero(periodic)
+        x, x0 = p["x"][start:stop], p["x0"][start:stop]
+        turns = np.round((x[:, axes] - x0[:, axes]) / length[axes])
+        changed = bool(np.any(turns != 0))
+        if changed:
+            x0[:, axes] += turns * length[axes]
+        return domain.any(changed)
 
     def compute_forces(self, start, stop) -> np.ndarray:
         """Failure, state (with the state halo) and bond forces of the rows [start, stop)."""
