@@ -520,8 +520,9 @@ def _send_records(domain, records) -> dict:
     recv_counts = np.empty(domain.size, np.int64)
     domain.comm.Alltoall(send_counts, recv_counts)
     rows = {k: np.ascontiguousarray(v) for k, v in records.items() if k != "rank"}
-    recv = exchange_rows(domain.comm, pack_rows(rows, order, row_dtype(rows)), send_counts,
-                         recv_counts, TAG_PD_BONDS)
+    ranks = np.arange(domain.size)
+    recv = exchange_rows(domain.comm, pack_rows(rows, order, row_dtype(rows)), ranks,
+                         send_counts, ranks, recv_counts, TAG_PD_BONDS)
     return {k: np.ascontiguousarray(v) for k, v in unpack_rows(recv).items()}
 
 
