@@ -152,18 +152,40 @@ def phi_2d(tau, F, p, code, E, nu):
 
 
 @njit(cache=True, inline="always")
-def phi_3d(tau, F, p, code, E, nu):
-    """Phi(sigma+) of row p, sigma = tau / det F (3D)."""
+def _frob_sym3(a00, a01, a02, a11, a12, a22):
+    return a00 * a00 + a11 * a11 + a22 * a22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)
+
+
+@njit(cache=True, inline="always")
+def phi_3d(tau, F, p, code, E, nu, floor):
+    """max(floor, Phi(sigma+)) of row p, sigma = tau / det F (3D). The eigen-solve is skipped
+    where it cannot matter: when the bound Phi <= c sigma:sigma (c = 1 for stress_squared,
+    max(1 + nu, 1 - 2 nu) / (2E) for tensile_energy, since sigma+:sigma+ <= sigma:sigma and
+    (tr sigma+)^2 <= 3 sigma+:sigma+) is below ``floor`` (the history EE_p), and when the
+    Gershgorin discs put every eigenvalue on one side of 0 (sigma+ = sigma or 0)."""
     J = (F[p, 0, 0] * (F[p, 1, 1] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 1])
          - F[p, 0, 1] * (F[p, 1, 0] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 0])
          + F[p, 0, 2] * (F[p, 1, 0] * F[p, 2, 1] - F[p, 1, 1] * F[p, 2, 0]))
     inv = 1.0 / J
-    p00, p01, p02, p11, p12, p22 = tensile_part_3d(
-        tau[p, 0, 0] * inv, 0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv,
-        0.5 * (tau[p, 0, 2] + tau[p, 2, 0]) * inv, tau[p, 1, 1] * inv,
-        0.5 * (tau[p, 1, 2] + tau[p, 2, 1]) * inv, tau[p, 2, 2] * inv)
-    pp = p00 * p00 + p11 * p11 + p22 * p22 + 2.0 * (p01 * p01 + p02 * p02 + p12 * p12)
-    return _phi(pp, p00 + p11 + p22, code, E, nu)
+    s00, s11, s22 = tau[p, 0, 0] * inv, tau[p, 1, 1] * inv, tau[p, 2, 2] * inv
+    s01 = 0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv
+    s02 = 0.5 * (tau[p, 0, 2] + tau[p, 2, 0]) * inv
+    s12 = 0.5 * (tau[p, 1, 2] + tau[p, 2, 1]) * inv
+    ss = _frob_sym3(s00, s01, s02, s11, s12, s22)
+    c = 1.0 if code == STRESS_SQUARED else max(1.0 + nu, 1.0 - 2.0 * nu) / (2.0 * E)
+    if c * ss <= floor:
+        return floor
+    r0 = abs(s01) + abs(s02)
+    r1 = abs(s01) + abs(s12)
+    r2 = abs(s02) + abs(s12)
+    if s00 - r0 >= 0.0 and s11 - r1 >= 0.0 and s22 - r2 >= 0.0:
+        phi = _phi(ss, s00 + s11 + s22, code, E, nu)           # sigma+ = sigma
+        return max(phi, floor)
+    if s00 + r0 <= 0.0 and s11 + r1 <= 0.0 and s22 + r2 <= 0.0:
+        return max(0.0, floor)                                   # sigma+ = 0
+    p00, p01, p02, p11, p12, p22 = tensile_part_3d(s00, s01, s02, s11, s12, s22)
+    pp = _frob_sym3(p00, p01, p02, p11, p12, p22)
+    return max(_phi(pp, p00 + p11 + p22, code, E, nu), floor)
 
 
 @njit(cache=True)
@@ -206,9 +228,7 @@ def energy_history_3d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, or
     lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
     o0, o1, o2 = origin[0], origin[1], origin[2]
     for p in range(x.shape[0]):
-        phi = phi_3d(tau, F, p, code, E, nu)
-        if phi > EE[p]:
-            EE[p] = phi
+        EE[p] = phi_3d(tau, F, p, code, E, nu, EE[p])
         me = mass[p] * EE[p]
         if me == 0.0:
             continue
