@@ -237,6 +237,7 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
             start, stop = self.prepare()
+            self.model.dt = dt      # rate models (viscoelastic_lps) integrate over the step
             f = self.compute_forces(start, stop)
             p = sim.particles
             v = p["v"][start:stop]
@@ -250,6 +251,7 @@ class IntegralMPMExtension(CheckpointedBonds, PDExtension):
 
     def particle_forces(self, sim, dt: float):
         start, stop = self.prepare()
+        self.model.dt = dt          # rate models (viscoelastic_lps) integrate over the step
         f = self.compute_forces(start, stop)
         self.write_damage(start, stop)
         yield start, stop, f
