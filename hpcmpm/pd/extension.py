@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
+from .boundary import impose_prescribed_velocity
 from .families import find_families
 from .geometry import damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
@@ -242,6 +243,7 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
             p = sim.particles
             v = p["v"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
+            impose_prescribed_velocity(sim, start, stop, v)     # pd/boundary.py
             p["x"][start:stop] += dt * v
             self.write_damage(start, stop)
 

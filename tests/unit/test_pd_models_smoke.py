@@ -1,0 +1,37 @@
+"""Smoke run of scripts/study_pd_models.py (tiny sizes): it exits 0 and writes finite numbers
+for every measurement; the measured values (nu_eff, energy drift, memory = "none" viscosity)
+are in its full run, reported in docs/studies.md."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def numbers(obj):
+    if isinstance(obj, (int, float)) and not isinstance(obj, bool):
+        yield obj
+    elif isinstance(obj, dict):
+        for v in obj.values():
+            yield from numbers(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from numbers(v)
+
+
+def test_study_pd_models_smoke(tmp_path):
+    out = tmp_path / "study.json"
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "study_pd_models.py"),
+                           "--smoke", "--out", str(out)], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    data = json.loads(out.read_text())
+    assert all(math.isfinite(v) for v in numbers(data))
+    assert {e["model"] for e in data["energy"]} == {"bond_energy", "lps"}
+    assert len(data["elastic_constants"]) == 2
+    assert data["viscoelastic"]["maxwell"] and data["viscoelastic"]["none"]
