@@ -56,7 +56,7 @@ def plate(dx: float):
 
 def run(dx: float, end: float = END, safety: float = 0.8, speed: float = SPEED):
     x0, ids = plate(dx)
-    delta = HORIZON * dx
+    delta = horizon * dx
     # Notches as pre-cracks, extended past the edge so the edge row is cut too.
     cracks = np.array([[[-dx, s * NOTCH_Y], [NOTCH, s * NOTCH_Y]] for s in (1, -1)])
     fam = find_families(x0, ids, len(x0), dx, delta, precracks=cracks)
@@ -120,6 +120,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dx", type=float, nargs="*", default=None)
     ap.add_argument("--smoke", action="store_true")
     ap.add_argument("--speed", type=float, default=SPEED, help="edge velocity (m/s)")
+    ap.add_argument("--horizon", type=float, default=HORIZON, help="delta / dx")
     ap.add_argument("--png", default=None, help="damage plot of the finest run")
     ap.add_argument("--out", default=str(REPO / "bench_results" /
                                          "study_kalthoff_winkler.json"))
@@ -128,8 +129,9 @@ def main(argv=None) -> int:
     end = 20e-6 if args.smoke else END
     rows = []
     for dx in dxs:
-        body, info = run(dx, end, speed=args.speed)
+        body, info = run(dx, end, speed=args.speed, horizon=args.horizon)
         info["speed"] = args.speed
+        info["horizon"] = args.horizon
         phi = body.damage()
         angles = crack_angles(body.pts.x0[: body.pts.n_owned], phi, dx)
         info["angles_deg"] = [a for a, _ in angles]

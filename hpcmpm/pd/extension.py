@@ -260,5 +260,8 @@ class IntegralMPMExtension(CheckpointedBonds, PDExtension):
 
 
 def make_extension(sim, material) -> PDExtension:
+    if material.params.get("crack_threshold") is not None:     # 003 §5.4: crack_planes.py
+        from .crack_planes import make_crack_plane_extension
+        return make_crack_plane_extension(sim, material)
     cls = IntegralMPMExtension if material.on_grid else PDBodyExtension
     return cls(sim, material)
