@@ -54,13 +54,15 @@ def plate(dx: float):
     return x0, np.arange(len(x0), dtype=np.int64)
 
 
-def run(dx: float, end: float = END, safety: float = 0.8, speed: float = SPEED):
+def run(dx: float, end: float = END, safety: float = 0.8, speed: float = SPEED,
+        horizon: float = HORIZON, plane: str = "strain"):
     x0, ids = plate(dx)
     delta = horizon * dx
     # Notches as pre-cracks, extended past the edge so the edge row is cut too.
     cracks = np.array([[[-dx, s * NOTCH_Y], [NOTCH, s * NOTCH_Y]] for s in (1, -1)])
     fam = find_families(x0, ids, len(x0), dx, delta, precracks=cracks)
-    c = pmb_micromodulus(2, bulk_modulus(2, E, NU, "strain"), delta)
+    nu = NU if plane == "strain" else 1.0 / 3.0      # the PMB's Poisson ratio
+    c = pmb_micromodulus(2, bulk_modulus(2, E, nu, plane), delta)
     s0 = critical_stretch(2, G0, c, delta)
     body = PDBody(x0, np.full(len(x0), dx * dx), ids, RHO, fam, PMB(c, s0))
     impact = (x0[:, 0] < 3 * dx) & (np.abs(x0[:, 1]) < NOTCH_Y)
@@ -121,7 +123,9 @@ def main(argv=None) -> int:
     ap.add_argument("--smoke", action="store_true")
     ap.add_argument("--speed", type=float, default=SPEED, help="edge velocity (m/s)")
     ap.add_argument("--horizon", type=float, default=HORIZON, help="delta / dx")
+    ap.add_argument("--plane", default="strain", choices=("strain", "stress"))
     ap.add_argument("--png", default=None, help="damage plot of the finest run")
+    ap.add_argument("--npz", default=None, help="x0 and damage of the finest run")
     ap.add_argument("--out", default=str(REPO / "bench_results" /
                                          "study_kalthoff_winkler.json"))
     args = ap.parse_args(argv)
@@ -129,17 +133,23 @@ def main(argv=None) -> int:
     end = 20e-6 if args.smoke else END
     rows = []
     for dx in dxs:
-        body, info = run(dx, end, speed=args.speed, horizon=args.horizon)
+        body, info = run(dx, end, speed=args.speed, horizon=args.horizon, plane=args.plane)
+        info["plane"] = args.plane
         info["speed"] = args.speed
         info["horizon"] = args.horizon
         phi = body.damage()
         angles = crack_angles(body.pts.x0[: body.pts.n_owned], phi, dx)
         info["angles_deg"] = [a for a, _ in angles]
+        # The whole path (5 to 60 mm from the tip) besides the start (5 to 35 mm).
+        info["path_angles_deg"] = [a for a, _ in crack_angles(
+            body.pts.x0[: body.pts.n_owned], phi, dx, r_max=0.06)]
         info["points"] = [k for _, k in angles]
         info["mean_angle_deg"] = float(np.nanmean(info["angles_deg"])) \
             if any(np.isfinite(info["angles_deg"])) else math.nan
         rows.append(info)
         print(json.dumps(info), flush=True)
+        if args.npz and dx == min(dxs):
+            np.savez(args.npz, x0=body.pts.x0[: body.pts.n_owned], damage=phi)
         if args.png and dx == min(dxs):
             save_png(args.png, body.pts.x0[: body.pts.n_owned], phi, dx,
                      f"dx = {dx * 1e3:g} mm: {info['mean_angle_deg']:.1f} deg")
