@@ -27,9 +27,15 @@ which puts the bond exactly on f = 0 (eq. 5.11 divides by lambda instead of w (2
 and does not return to the yield surface). e_p is a per-bond state (``bonds.state["plastic
 _stretch"]``) shared by both ends: e_iso is the mean of the two ends' J^{1/d} - 1, so both
 ends update it identically and the pair forces stay bitwise antisymmetric; the thesis's
-per-end e_p would need the other end's state. e_p enters both terms as printed in eq. 5.9,
-but the mu term keeps |Ybar| (eq. 5.8's replacement of |Ybar| by |Y| is a smoothness
-approximation), so psi_p = inf is exactly the elastic model.
+per-end e_p would need the other end's state. With ``plastic_yield`` set the force is eq.
+5.9 as printed: eq. 5.8's |Ybar| - |X| ~ |Y| - |X| in the mu term (direction still Ybar),
+
+    T_p<X> = (beta w / |X|) (e - e_p) [2 mu dir(Ybar) + lambda dir(Y)],
+
+and psi = beta w (mu + lambda/2) (e - e_p)^2. Keeping |Ybar| there instead would leave
+2 mu (|Ybar|/|X| - 1 - e_p) once e_p has absorbed the deviatoric part of e: a force of the
+size of |Ybar| - |Y| that no plastic flow bounds, which drives crushed regions unstable.
+Under a uniform deformation the two forms agree (Ybar = Y); psi_p = inf is eq. 5.6.
 
 Passes: `correspondence_kinematics` (failure on the total stretch, K, F) on owners, the halo
 refreshes F and ``active``, then `bond_energy_forces` (return map, forces). A detached point
@@ -124,12 +130,13 @@ def plastic_return(E_dev, k, xl, psi_p):
 
 
 @njit(cache=True, error_model="numpy")
-def _bar_term(Fb0, Fb1, Fb2, xl, ep, act):
-    """(|Ybar|/|X| - 1 - e_p) dir(Ybar) times the point's active flag."""
+def _bar_term(Fb0, Fb1, Fb2, xl, ep, act, plastic, s):
+    """(|Ybar|/|X| - 1 - e_p) dir(Ybar) (eq. 5.6), or (s - e_p) dir(Ybar) (eq. 5.9, plastic),
+    times the point's active flag."""
     if act == 0.0:
         return 0.0, 0.0, 0.0
     n = norm3(Fb0, Fb1, Fb2)
-    c = (n / xl - 1.0 - ep) / n
+    c = ((s if plastic else n / xl - 1.0) - ep) / n
     return c * Fb0, c * Fb1, c * Fb2
 
 
@@ -162,8 +169,8 @@ def bond_energy_forces(x, x0, vol, offsets, slot, status, weight, F, active, eis
                     e_p[b] = ep
             pb0, pb1, pb2 = _apply(F, p, X0, X1, X2, dim)
             qb0, qb1, qb2 = _apply(F, q, X0, X1, X2, dim)
-            u0, u1, u2 = _bar_term(pb0, pb1, pb2, xl, ep, active[p])
-            v0, v1, v2 = _bar_term(qb0, qb1, qb2, xl, ep, active[q])
+            u0, u1, u2 = _bar_term(pb0, pb1, pb2, xl, ep, active[p], plastic, s)
+            v0, v1, v2 = _bar_term(qb0, qb1, qb2, xl, ep, active[q], plastic, s)
             c_mu = 2.0 * mu * wb / xl * (vol[p] * vol[q])
             c_lam = 2.0 * lam * wb / xl * (s - ep) / yl * (vol[p] * vol[q])
             f0 += c_mu * (u0 + v0) + c_lam * y0
@@ -177,8 +184,8 @@ def bond_energy_forces(x, x0, vol, offsets, slot, status, weight, F, active, eis
 
 @njit(cache=True, error_model="numpy")
 def bond_energy_density(x, x0, vol, offsets, slot, status, weight, F, active, e_p, beta, lam,
-                        mu, n_owned, out):
-    """W_p = sum_q psi V_q over intact bonds (eq. 5.5 with beta)."""
+                        mu, plastic, n_owned, out):
+    """W_p = sum_q psi V_q over intact bonds (eq. 5.5 with beta; plastic: eq. 5.8's form)."""
     dim = x.shape[1]
     for p in range(n_owned):
         s_w = 0.0
@@ -190,7 +197,9 @@ def bond_energy_density(x, x0, vol, offsets, slot, status, weight, F, active, e_
             xl = norm3(X0, X1, X2)
             s = norm3(y0, y1, y2) / xl - 1.0 - e_p[b]
             sb = 0.0
-            if active[p] != 0.0:
+            if plastic:
+                sb = s
+            elif active[p] != 0.0:
                 pb0, pb1, pb2 = _apply(F, p, X0, X1, X2, dim)
                 sb = norm3(pb0, pb1, pb2) / xl - 1.0 - e_p[b]
             s_w += beta * weight[b] * (mu * sb * sb + 0.5 * lam * s * s) * vol[q]
@@ -283,7 +292,7 @@ class BondEnergy:
         out = np.empty(pts.n_owned) if out is None else out
         bond_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                             self.F, self.active, b.state[PLASTIC_STATE], self.beta, self.lam,
-                            self.mu, pts.n_owned, out)
+                            self.mu, self.psi_p < math.inf, pts.n_owned, out)
         return out
 
     def yield_values(self, pts) -> np.ndarray:

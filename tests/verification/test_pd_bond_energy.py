@@ -151,8 +151,11 @@ def elastic_E2(m, pts):
     return 2.0 * f[np.isfinite(f)]
 
 
-def test_infinite_yield_is_the_elastic_model():
+def test_plastic_form_below_yield_is_the_elastic_model_under_uniform_strain():
+    # Below yield e_p = 0 and eq. 5.9 differs from eq. 5.6 only by |Ybar| -> |Y| in the mu
+    # term: equal where Ybar = F X = Y (a uniform deformation; F exact to round-off).
     F = np.eye(2) + np.array([[0.02, 0.05], [-0.01, 0.0]])
-    _, _, f_inf = evaluate(2, 10, F, jitter=0.1)
-    _, _, f_big = evaluate(2, 10, F, jitter=0.1, psi_p=1e300)
-    assert np.array_equal(f_inf, f_big)
+    pts, _, f_inf = evaluate(2, 10, F, jitter=0.1)
+    pts, _, f_big = evaluate(2, 10, F, jitter=0.1, psi_p=1e300)
+    assert np.all(pts.bonds.state[PLASTIC_STATE] == 0.0)
+    assert np.abs(f_big - f_inf).max() < 1e-12 * np.abs(f_inf).max()
