@@ -17,14 +17,19 @@ a central-force solid (nu_eff = 1/4, whatever lambda/mu), and the Ybar term is n
 gradient of sum_p V_p W_p (F_p depends on all of p's bonds): energy is not conserved exactly;
 scripts/study_bond_energy.py measures both.
 
-Bond plasticity (eq. 5.8-5.11 as corrected by the issue): with e = |Y|/|X| - 1,
-e_iso = J^{1/d} - 1 and e_dev = e - e_iso,
+Bond plasticity (eq. 5.8-5.11 as corrected by the issue): with e = |Y|/|X| - 1, e_iso the
+point's mean bond stretch and e_dev = e - e_iso,
 
     E_dev = (w beta (2 mu + lambda) / |X|) (e_dev - e_p),      f = E_dev^2 / 2 - psi_p  (5.10)
     f > 0:  de_p = |X| (E_dev - sqrt(2 psi_p) sign E_dev) / (w beta (2 mu + lambda))
 
 which puts the bond exactly on f = 0 (eq. 5.11 divides by lambda instead of w (2 mu + lambda)
-and does not return to the yield surface). e_p is a per-bond state (``bonds.state["plastic
+and does not return to the yield surface). e_iso = sum_q w |X| (|Y| - |X|) V_q / sum_q w |X|^2
+V_q (the LPS dilatation over d; `bond_iso_stretches`) instead of the issue's J^{1/d} - 1 of
+F_p: both are s for an isotropic stretch s and tr(eps)/d to first order, but once e_p has
+absorbed the deviatoric stretch the bond force is ~ e_iso, and J of a disordered (plastically
+flowed) family is unbounded: with J^{1/d} - 1 a perfectly plastic block gains energy without
+bound (velocities x1e9 in 2500 steps), with the bond dilatation it dissipates. e_p is a per-bond state (``bonds.state["plastic
 _stretch"]``) shared by both ends: e_iso is the mean of the two ends' J^{1/d} - 1, so both
 ends update it identically and the pair forces stay bitwise antisymmetric; the thesis's
 per-end e_p would need the other end's state. With ``plastic_yield`` set the force is eq.
@@ -49,7 +54,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .correspondence import _invert, correspondence_kinematics
+from .correspondence import correspondence_kinematics
 from .families import INFLUENCES
 from .geometry import bond_vectors, norm3
 
@@ -100,24 +105,24 @@ def _apply(F, p, X0, X1, X2, dim):
 
 
 @njit(cache=True, error_model="numpy")
-def _iso_stretch(F, active, p, dim):
-    """J^{1/d} - 1 of a point (0 when detached)."""
-    if active[p] == 0.0:
-        return 0.0
-    if dim == 2:
-        J = F[p, 0, 0] * F[p, 1, 1] - F[p, 0, 1] * F[p, 1, 0]
-        return math.sqrt(J) - 1.0 if J > 0.0 else -1.0
-    Fi = np.empty((3, 3))
-    J = _invert(F[p], Fi, 3)
-    return J ** (1.0 / 3.0) - 1.0 if J > 0.0 else -1.0
-
-
-@njit(cache=True, error_model="numpy")
-def iso_stretches(F, active, n, out):
-    """out_p = J_p^{1/d} - 1 for n points (owned + halo)."""
-    dim = F.shape[1]
-    for p in range(n):
-        out[p] = _iso_stretch(F, active, p, dim)
+def bond_iso_stretches(x, x0, vol, offsets, slot, status, weight, n_owned, out):
+    """out_p = sum_q w |X| (|Y| - |X|) V_q / sum_q w |X|^2 V_q over intact bonds: the LPS
+    dilatation over d, the mean bond stretch (= J^{1/d} - 1 for an isotropic stretch, tr eps/d
+    to first order for any uniform strain)."""
+    dim = x.shape[1]
+    for p in range(n_owned):
+        num = 0.0
+        den = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            q = slot[b]
+            y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
+            xl = norm3(X0, X1, X2)
+            wv = weight[b] * vol[q] * xl
+            num += wv * (norm3(y0, y1, y2) - xl)
+            den += wv * xl
+        out[p] = num / den if den > 0.0 else 0.0
 
 
 @njit(cache=True, error_model="numpy")
@@ -277,7 +282,8 @@ class BondEnergy:
         broken = correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
                                            b.weight, self.s0, pts.n_owned, self.F, self.Kinv,
                                            self.active)
-        iso_stretches(self.F, self.active, pts.n_owned, self.eiso)
+        bond_iso_stretches(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                           pts.n_owned, self.eiso)
         return broken
 
     def forces(self, pts, f, commit: bool = True) -> int:
