@@ -1,6 +1,7 @@
-"""Smoke run of scripts/study_pd_models.py (tiny sizes): it exits 0 and writes finite numbers
-for every measurement; the measured values (nu_eff, energy drift, memory = "none" viscosity)
-are in its full run, reported in docs/studies.md."""
+"""Smoke runs of scripts/study_pd_models.py and scripts/study_kalthoff_winkler.py (tiny
+sizes): they exit 0 and write finite numbers for every measurement; the measured values
+(nu_eff, energy drift, memory = "none" viscosity, crack angles) are in their full runs,
+reported in docs/studies.md."""
 
 import json
 import math
@@ -35,3 +36,15 @@ def test_study_pd_models_smoke(tmp_path):
     assert {e["model"] for e in data["energy"]} == {"bond_energy", "lps"}
     assert len(data["elastic_constants"]) == 2
     assert data["viscoelastic"]["maxwell"] and data["viscoelastic"]["none"]
+
+
+def test_study_kalthoff_winkler_smoke(tmp_path):
+    out = tmp_path / "kw.json"
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "study_kalthoff_winkler.py"),
+                           "--smoke", "--out", str(out)], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (row,) = json.loads(out.read_text())
+    assert row["steps"] > 0 and row["particles"] == 800
+    assert all(math.isfinite(row[k]) for k in ("s0", "dt", "wall_s"))
