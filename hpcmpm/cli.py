@@ -35,12 +35,10 @@ def configure_logging(quiet: bool = False) -> None:
 
 
 def _validate(args) -> int:
-    from .geometry import sample_scene
     from .scene import load_scene
+    from .startup import validate_report
 
-    scene = load_scene(args.scene, args.set or [])
-    n = len(sample_scene(scene)["id"])
-    print(f"{args.scene}: ok ({n} particles, {len(scene.materials)} materials, dim {scene.dim})")
+    print(validate_report(load_scene(args.scene, args.set or [])))
     return 0
 
 
@@ -80,6 +78,21 @@ def _bench(args) -> int:
     return bench_command(args)
 
 
+def _render(args) -> int:
+    from . import numba_cache
+
+    numba_cache.configure()  # the 3D renderer's kernel is numba
+    from .viz.render import render_command
+
+    return render_command(args)
+
+
+def _plot(args) -> int:
+    from .viz.diagnostics import plot_command
+
+    return plot_command(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hpcmpm", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"hpcmpm {__version__}")
@@ -98,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="checkpoint every HH:MM:SS of wall time")
     run.add_argument("--debug-checks", action="store_true",
                      help="check the global particle count every step")
+    run.add_argument("--dry-run", action="store_true",
+                     help="sample and decompose, report counts and memory per rank, exit")
     run.set_defaults(handler=_run)
 
     restart = verbs.add_parser("restart", help="continue from a checkpoint")
@@ -129,6 +144,26 @@ def build_parser() -> argparse.ArgumentParser:
     job.add_argument("--output", "-o", help="write the script here instead of stdout")
     job.add_argument("extra", nargs="*", help="extra `hpcmpm run` arguments (after --)")
     job.set_defaults(handler=_jobscript)
+
+    render = verbs.add_parser("render", help="pictures and a movie of a run (docs/output.md)")
+    render.add_argument("run_dir")
+    render.add_argument("--field", metavar="NAME[:COMPONENT]",
+                        help="colour by this frame field (default speed), e.g. material, J, v:x")
+    render.add_argument("--frames", metavar="A:B:K", help="slice of the frames (default all)")
+    render.add_argument("--out", help="folder of the PNGs and movie (default RUN_DIR/render)")
+    render.add_argument("--size", metavar="WxH", help="picture size in pixels (default 960x720)")
+    render.add_argument("--camera", metavar="eye=X,Y,Z;target=X,Y,Z;up=X,Y,Z;fov=DEG",
+                        help="3D camera (default: frames the domain)")
+    render.add_argument("--fps", type=float, default=12.0, help="movie frame rate")
+    render.add_argument("--movie", default="auto", choices=("auto", "mp4", "gif", "webp", "none"),
+                        help="movie format (auto: MP4 if ffmpeg is available, else GIF)")
+    render.add_argument("--quiet", action="store_true", help="no progress bar")
+    render.set_defaults(handler=_render)
+
+    plot = verbs.add_parser("plot", help="time series of a run's diagnostics to PNG + CSV")
+    plot.add_argument("run_dir")
+    plot.add_argument("--out", help="output folder (default RUN_DIR)")
+    plot.set_defaults(handler=_plot)
 
     bench = verbs.add_parser("bench", help="run the benchmarks (see BENCHMARKS.md)",
                              add_help=False)

@@ -132,7 +132,10 @@ class Runner:
             self.first_frame_written = True
         with SignalFlag() as flag:
             while sim.time < opts.end_time * (1 - 1e-12):
-                if self.domain.any(flag.raised is not None):
+                # Agreed with the time step's health check (one allreduce for both).
+                self.domain.stop_requested = flag.raised is not None
+                dt = self.choose_dt()
+                if self.domain.stop_agreed:
                     self.write_checkpoint()
                     progress.close()
                     raise CheckpointedOnSignal(
@@ -140,7 +143,6 @@ class Runner:
                         f"t={sim.time:.6g} in {opts.out_dir}; continue with "
                         f"`hpcmpm restart {self.latest_checkpoint_path}`")
                 target = self.frame_time(self.frame_index)
-                dt = self.choose_dt()
                 clipped = sim.time + dt >= target * (1 - 1e-12)
                 if clipped:
                     dt = target - sim.time
@@ -259,24 +261,15 @@ def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
 
 def make_domain(scene, comm: Communicator | None = None) -> Domain:
     return Domain(scene.dim, scene.dx, scene.domain_lo, scene.domain_hi,
-                  comm=None if comm is None else comm.comm)
+                  comm=None if comm is None else comm.comm,
+                  periodic=getattr(scene, "periodic", ()))
 
 
 def initial_particles(sim: Simulation) -> None:
-    """Sample the bodies, spread them over the ranks and decompose."""
-    from .geometry import sample_scene
+    """Count, check the memory, sample this rank's share and decompose (`hpcmpm.startup`)."""
+    from .startup import initial_particles as start
 
-    domain, p = sim.domain, sim.particles
-    values = sample_scene(sim.scene)
-    # Every rank samples (deterministic) and keeps a strided share, so no rank ever holds
-    # the whole scene; the decomposition then moves particles to their owners.
-    mine = np.flatnonzero(values["id"] % domain.size == domain.rank)
-    p.append_rows({k: v for k, v in values.items() if k in p}, mine)
-    if sim.scene.prescribed:
-        from .boundaries import mark_prescribed_particles
-
-        mark_prescribed_particles(sim.scene, p)
-    domain.decompose(p)
+    start(sim)
 
 
 def make_writer(sim: Simulation, out_dir: Path, restart_chain: list[str], frame_index: int = 0):
@@ -317,6 +310,10 @@ def simulate(scene, end_time: float | None = None, observer=None, comm=None) -> 
 def run_command(args) -> int:
     comm = Communicator()
     scene = load_scene_on_root(comm, args.scene, getattr(args, "set", None) or [])
+    if getattr(args, "dry_run", False):
+        from .startup import dry_run
+
+        return dry_run(scene, comm)
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.scene).stem
     prepare_output_dir(comm, out_dir, getattr(args, "force", False))
     domain = make_domain(scene, comm)

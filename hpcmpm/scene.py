@@ -23,6 +23,7 @@ CONDITIONS = ("sticky", "slip", "separate")
 BODY_SHAPES = ("box", "sphere", "cylinder", "mesh")
 COLLIDER_SHAPES = ("half_space", "sphere", "box", "cylinder")
 FACE_NAMES = ("x_lower", "x_upper", "y_lower", "y_upper", "z_lower", "z_upper")
+AXIS_NAMES = ("x", "y", "z")
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,9 @@ class Scene:
     parallel: ParallelSpec
     integrator: str = "explicit"
     solver: SolverSpec = SolverSpec()
+    # Periodic axes as sorted indices (0 = x): particles leaving through one face re-enter
+    # through the other, the grid wraps, the walls of those faces do not act.
+    periodic: tuple[int, ...] = ()
 
     def material_index(self, name: str) -> int:
         return [m.name for m in self.materials].index(name)
@@ -308,7 +312,8 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]
 
 # -- sections ---------------------------------------------------------------------------------
 SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "transfer",
-                   "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity", "integrator")
+                   "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity", "integrator",
+                   "periodic")
 SOLVER_MODES = ("linearized", "newton")
 PRECONDITIONERS = ("jacobi", "none")
 
@@ -321,7 +326,8 @@ def _simulation(c: Checker, raw: dict) -> dict:
         return {"dim": None, "domain_lo": None, "domain_hi": None, "dx": None,
                 "particles_per_cell": None, "kernel": None, "transfer": None,
                 "flip_alpha": None, "cfl": None, "dt": None, "max_dt": None,
-                "end_time": None, "gravity": None, "integrator": None}
+                "end_time": None, "gravity": None, "integrator": None,
+                "periodic": ()}
     c.keys(sim, "simulation", SIMULATION_KEYS)
     p = "simulation"
     out: dict[str, Any] = {}
@@ -353,6 +359,7 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out["max_dt"] = c.number(sim, "max_dt", p, None, low=0.0)
     out["end_time"] = c.number(sim, "end_time", p, low=0.0)
     out["gravity"] = c.vector(sim, "gravity", p, dim, (0.0,) * dim) if dim else None
+    out["periodic"] = _periodic(c, sim, p, dim)
     from .solvers import INTEGRATORS
 
     out["integrator"] = c.string(sim, "integrator", p, "explicit", tuple(INTEGRATORS))
@@ -362,6 +369,39 @@ def _simulation(c: Checker, raw: dict) -> dict:
             c.problem(f"{p}.dx", f"must divide the domain size evenly, got {out['dx']} for "
                                  f"extent {[h - l for l, h in zip(lo, hi)]}")
     return out
+
+
+def _periodic(c: Checker, sim: dict, p: str, dim) -> tuple[int, ...]:
+    """``periodic = ["x", ...]``: a subset of the axes, each named once; sorted indices."""
+    value = sim.get("periodic", [])
+    where = f"{p}.periodic"
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        c.problem(where, f"must be an array of axis names, got {_describe(value)}")
+        return ()
+    names = AXIS_NAMES[:dim] if dim else AXIS_NAMES
+    unknown = [v for v in value if v not in names]
+    if unknown:
+        c.problem(where, f"unknown axis {unknown[0]!r} (valid: {', '.join(names)})")
+        return ()
+    repeated = sorted({v for v in value if value.count(v) > 1})
+    if repeated:
+        c.problem(where, f"axis {repeated[0]!r} named more than once")
+        return ()
+    return tuple(sorted(names.index(v) for v in value))
+
+
+def _check_periodic_walls(c: Checker, raw: dict, periodic: tuple[int, ...]) -> None:
+    """A face of a periodic axis is no wall: setting its condition explicitly is a mistake."""
+    walls = raw.get("walls")
+    if not isinstance(walls, dict):
+        return
+    for axis in periodic:
+        for side in ("lower", "upper"):
+            name = f"{AXIS_NAMES[axis]}_{side}"
+            if name in walls:
+                c.problem(f"walls.{name}", f"axis {AXIS_NAMES[axis]!r} is periodic "
+                                           f"(simulation.periodic): its faces are not walls; "
+                                           f"remove walls.{name} or the axis")
 
 
 def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
@@ -714,6 +754,7 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     materials = _materials(c, raw)
     bodies = _bodies(c, raw, dim, materials, sim["domain_lo"], sim["domain_hi"], base_dir)
     walls = _walls(c, raw, dim)
+    _check_periodic_walls(c, raw, sim["periodic"])
     colliders = _colliders(c, raw, dim)
     prescribed = _prescribed(c, raw, dim)
     entries = raw.get("materials")

@@ -414,10 +414,13 @@ class Simulation:
         speed, nbad = scan_health(p["x"], p["v"], p[kinds[0]], self._bad, MAX_REPORTED)
         if nbad == 0 and len(kinds) > 1:
             speed, nbad = scan_health(p["x"], p["v"], p[kinds[1]], self._bad, MAX_REPORTED)
-        total_bad = self.domain.sum(int(nbad))
+        # One allreduce for the step's global decisions (speed, health, stop, far particles).
+        speed, total_bad = self.domain.agree(p, speed, int(nbad))
+        if self.domain.moved_in_agree:  # far jumps delivered: the order is stale
+            self._needs_sort = True
         if total_bad:
             self.raise_instability(int(nbad), total_bad)
-        return self.domain.max(speed)
+        return speed
 
     def raise_instability(self, nbad_local: int, total_bad: int) -> None:
         p = self.particles

@@ -114,6 +114,11 @@ class ParticleSet:
             self._data[name] = arr
         self.capacity = new_cap
 
+    def reserve(self, n: int) -> None:
+        """Make room for ``n`` particles in all, so appends up to that many do not grow the
+        arrays by half on the way (start-up knows its share in advance)."""
+        self._reserve(n)
+
     def append(self, values: dict[str, np.ndarray]) -> None:
         """Add particles. ``values`` maps field names to arrays with equal first dimension;
         fields not given take their fill value. Unknown names are an error."""

@@ -165,9 +165,10 @@ friction = 0.0
 """
 
 
-def build_hpcmpm(s: BenchScene, comm=None):
+def build_hpcmpm(s: BenchScene, comm=None, select: np.ndarray | None = None):
     """A `Simulation` holding exactly ``s``'s particles (each rank a strided share, then the
-    decomposition moves them to their owners, as `hpcmpm.runner.initial_particles` does)."""
+    decomposition moves them to their owners, as `hpcmpm.runner.initial_particles` does);
+    ``select`` (indices) keeps only those particles (the co-run baseline's halves)."""
     from hpcmpm.runner import make_domain
     from hpcmpm.scene import parse_scene
     from hpcmpm.simulation import Simulation
@@ -177,6 +178,8 @@ def build_hpcmpm(s: BenchScene, comm=None):
     sim = Simulation(scene, domain)
     ids = np.arange(s.n, dtype=np.int64)
     mine = np.flatnonzero(ids % domain.size == domain.rank)
+    if select is not None:
+        mine = np.intersect1d(mine, select)
     sim.particles.append_rows({
         "id": ids, "group": np.zeros(s.n, dtype=np.int32), "x": s.x0, "v": s.v0,
         "mass": np.full(s.n, s.p_mass), "vol0": np.full(s.n, s.p_vol)}, mine)

@@ -12,6 +12,15 @@ every rank meets at a barrier before each phase, so the phase times are each pha
 without the waiting for the slower rank (written to parallel_sync_phases.json; its step
 times include the barriers and are not an efficiency).
 
+Co-run baseline (``--corun``, on by default): two 1-rank runs started at the same moment,
+each on the half of the particles one rank of the 2-rank run owns (the same bisection), with
+no MPI between them. Their time (the slower of the two, per repetition) is what two ranks
+can reach on this machine when the cores and the memory system are shared but nothing is
+exchanged or waited for; ``t_corun / t2`` says how much of that the 2-rank run keeps, and
+the phase tables of the three runs side by side say where the rest goes (compute phases
+slower than in the co-run: particle order, block size; halo and migration: exchange and
+waiting; load: the halves' particle counts).
+
     python scripts/bench_parallel.py --steps 10 --reps 5 --rounds 2
 """
 
@@ -43,12 +52,30 @@ def mpiexec() -> str:
 
 
 # -- workers -----------------------------------------------------------------------------------
+def half_of(s, half: int):
+    """Indices of the particles rank ``half`` owns in the 2-rank decomposition of ``s``
+    (the same recursive bisection, computed in one process)."""
+    import numpy as np
+
+    from hpcmpm.parallel.decomposition import particle_cells, recursive_bisection
+    from hpcmpm.scene import parse_scene
+
+    scene = parse_scene(bc.hpcmpm_toml(s))
+    lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
+    n_cells = np.round((hi - lo) / scene.dx).astype(np.int64)
+    cells = particle_cells(s.x0, lo, 1.0 / scene.dx)
+    boxes = recursive_bisection(cells, 2, n_cells, lambda a: a, lambda a: a)
+    inside = np.all((cells >= boxes[half, 0]) & (cells < boxes[half, 1]), axis=1)
+    return np.flatnonzero(inside)
+
+
 def hpcmpm_worker(args) -> None:
     from hpcmpm.parallel import Communicator
 
     comm = Communicator()
     s = bc.make_scene(args.scene, args.smoke)
-    sim = bc.build_hpcmpm(s, comm)
+    select = None if args.half is None else half_of(s, args.half)
+    sim = bc.build_hpcmpm(s, comm, select)
     sim.sync_phases = args.sync_phases
     domain = sim.domain
     for _ in range(args.warmup):
@@ -102,6 +129,26 @@ def launch(cmd: list[str], env: dict, timeout: float) -> dict:
                      f"{out.stdout[-3000:]}\n{out.stderr[-3000:]}")
 
 
+def launch_corun(me: list[str], args, env: dict) -> list[dict]:
+    """The two halves as plain 1-rank processes started together; both results."""
+    cmds = [me + ["--worker", "hpcmpm", "--half", str(h)] + worker_args(args) for h in (0, 1)]
+    procs = [subprocess.Popen(c, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for c in cmds]
+    results = []
+    for proc, cmd in zip(procs, cmds):
+        try:
+            out, err = proc.communicate(timeout=args.timeout)
+        except subprocess.TimeoutExpired:
+            for p in procs:
+                p.kill()
+            raise SystemExit(f"timed out after {args.timeout:.0f} s: {' '.join(cmd)}") from None
+        lines = [ln for ln in out.splitlines() if ln.startswith(MARK)]
+        if not lines:
+            raise SystemExit(f"no result from {' '.join(cmd)}:\n{out[-2000:]}\n{err[-2000:]}")
+        results.append(json.loads(lines[-1][len(MARK):]))
+    return results
+
+
 def worker_args(args) -> list[str]:
     a = ["--scene", args.scene, "--steps", str(args.steps), "--reps", str(args.reps),
          "--warmup", str(args.warmup)]
@@ -122,6 +169,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sync-phases", action="store_true",
                     help="barrier before every phase: the phase times leave out waiting for "
                          "other ranks (the step times then include the barriers)")
+    ap.add_argument("--no-corun", dest="corun", action="store_false",
+                    help="skip the co-run baseline (two 1-rank half runs at once)")
+    ap.add_argument("--half", type=int, choices=[0, 1], default=None, help=argparse.SUPPRESS)
     ap.add_argument("--worker", choices=["hpcmpm", "peer"], help=argparse.SUPPRESS)
     ap.add_argument("--threads", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -146,9 +196,20 @@ def main(argv=None) -> int:
         except ImportError:
             print("peer skipped: taichi not installed (pip install -e '.[bench]')")
             with_peer = False
-    runs: dict[str, list] = {"hpcmpm_1": [], "hpcmpm_2": [], "peer_1": [], "peer_2": []}
+    runs: dict[str, list] = {"hpcmpm_1": [], "hpcmpm_2": [], "hpcmpm_corun": [], "peer_1": [],
+                             "peer_2": []}
     extra: dict[str, dict] = {}
     for _ in range(args.rounds):
+        if args.corun:
+            halves = launch_corun(me, args, env)
+            # A repetition of the co-run lasts as long as its slower half.
+            runs["hpcmpm_corun"] += [max(a, b) for a, b in
+                                     zip(halves[0]["seconds"], halves[1]["seconds"])]
+            extra["hpcmpm_corun"] = {
+                "particles_per_rank": [h["particles_per_rank"][0] for h in halves],
+                "phases_max_over_ranks_s": {k: max(h["phases_max_over_ranks_s"].get(k, 0.0)
+                                                   for h in halves)
+                                            for k in halves[0]["phases_max_over_ranks_s"]}}
         for ranks in (1, 2):
             r = launch([mpiexec(), "-n", str(ranks)] + me + ["--worker", "hpcmpm"]
                        + worker_args(args), env, args.timeout)
@@ -169,13 +230,19 @@ def main(argv=None) -> int:
             eff[code] = {
                 "efficiency_median": one["ms_per_step_median"] / (2 * two["ms_per_step_median"]),
                 "efficiency_min": one["ms_per_step_min"] / (2 * two["ms_per_step_min"])}
+    if "hpcmpm_corun" in summary and "hpcmpm_2" in summary:
+        corun, two = summary["hpcmpm_corun"], summary["hpcmpm_2"]
+        eff["hpcmpm_vs_corun"] = {
+            "efficiency_median": corun["ms_per_step_median"] / two["ms_per_step_median"],
+            "efficiency_min": corun["ms_per_step_min"] / two["ms_per_step_min"]}
     rows = [[k, v["ms_per_step_min"], v["ms_per_step_median"],
              v["particle_steps_per_s_median"] / 1e6] for k, v in summary.items()]
     bc.print_table(["run", "ms/step min", "median", "Mpart-steps/s (median)"], rows)
     for code, e in eff.items():
-        print(f"{code}: 2-rank efficiency t1/(2 t2) = {e['efficiency_median']:.3f} (median), "
+        what = "t_corun / t2" if code.endswith("corun") else "t1/(2 t2)"
+        print(f"{code}: 2-rank efficiency {what} = {e['efficiency_median']:.3f} (median), "
               f"{e['efficiency_min']:.3f} (min)")
-    for k in ("hpcmpm_1", "hpcmpm_2"):
+    for k in ("hpcmpm_1", "hpcmpm_corun", "hpcmpm_2"):
         ph = summary.get(k, {}).get("phases_max_over_ranks_s")
         if ph:
             steps = args.steps * args.reps

@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # Create (or reuse) the project's virtual environment and install hpcmpm into it.
-#   bash scripts/install.sh [EXTRAS]      e.g. EXTRAS=test  -> pip install -e '.[mpich,test]'
+#   bash scripts/install.sh [EXTRAS]      e.g. EXTRAS=test  -> pip install -e '.[mpich,viz,test]'
 # Needs only python3 (3.11+) with venv; no root. MPI comes from the PyPI `mpich` wheel.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${HPCMPM_VENV:-$root/.venv}"
-extras="mpich${1:+,$1}"
+extras="mpich,viz${1:+,$1}"  # viz: ffmpeg for hpcmpm render's MP4 movies
 if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi

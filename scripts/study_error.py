@@ -370,16 +370,14 @@ def main(argv=None) -> int:
     for (name, tr, k), o in orders.items():
         print(f"  {name:4s} {tr:10s} {k:9s} {o:6.2f}")
 
-    import matplotlib
+    from hpcmpm.viz.plots import Curve, Panel, plot_panels
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(problems), figsize=(6 * len(problems), 5), squeeze=False)
     colors = dict(zip(transfers, ("C0", "C1", "C2", "C3")))
     colors[PEER] = "k"
     styles = {"quadratic": "o-", "cubic": "s--"}
-    for ax, name in zip(axes[0], problems):
+    panels = []
+    for name in problems:
+        curves = []
         for key in keys:
             if key[0] != name:
                 continue
@@ -389,24 +387,21 @@ def main(argv=None) -> int:
             if not sel:
                 continue
             peer_row = tr == PEER
-            ax.loglog([r["wall_s"] for r in sel], [r["error"] for r in sel],
-                      "*:" if peer_row else styles[k], color=colors[tr],
-                      markersize=11 if peer_row else 6,
-                      label=f"{tr}/{k}{' (peer: Taichi)' if peer_row else ''} "
-                            f"(order {orders[key]:.2f})")
-        ax.set_xlabel("wall time per run [s]")
-        ax.set_ylabel("relative period error" if name == "bar"
-                      else "RMS displacement error / A")
-        ax.set_title("axial bar (period)" if name == "bar"
-                     else f"manufactured large deformation (A = {MMS_A})")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle(f"hpcmpm error vs cost, cells {cells}"
-                 + (f"; bar also in the peer ({PEER})" if peer is not None else ""))
-    fig.tight_layout()
-    png = Path(args.png)
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=110)
+            curves.append(Curve([r["wall_s"] for r in sel], [r["error"] for r in sel],
+                                f"{tr}/{k}{' (peer: Taichi)' if peer_row else ''} "
+                                f"(order {orders[key]:.2f})",
+                                "*:" if peer_row else styles[k], colors[tr],
+                                11 if peer_row else 6))
+        panels.append(Panel(curves, "wall time per run [s]",
+                            "relative period error" if name == "bar"
+                            else "RMS displacement error / A",
+                            "axial bar (period)" if name == "bar"
+                            else f"manufactured large deformation (A = {MMS_A})",
+                            logx=True, logy=True, legend_size=7))
+    png = plot_panels(Path(args.png), panels,
+                      f"hpcmpm error vs cost, cells {cells}"
+                      + (f"; bar also in the peer ({PEER})" if peer is not None else ""),
+                      cols=len(panels), panel_size=(6.0, 5.0))
     print(f"wrote {png}")
     return 0
 

@@ -14,7 +14,7 @@ cd "$root"
 # installed (root + apt-get; about 1 minute); elsewhere that test is skipped with its reason.
 if ! command -v pvpython >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
-        --no-install-recommends paraview python3-paraview) >/dev/null 2>&1 \
+        --no-install-recommends paraview python3-paraview xvfb xauth) >/dev/null 2>&1 \
         || echo "ParaView not installable here; its check is skipped"
 fi
 (. scripts/env.sh && python -m pytest -q "$@")

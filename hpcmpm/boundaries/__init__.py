@@ -18,13 +18,14 @@ from .walls import Walls
 
 
 def build_boundaries(scene) -> list:
-    """Walls (when the scene has them) followed by the colliders, in scene order."""
+    """Walls (when the scene has them) followed by the colliders, in scene order. The faces
+    of periodic axes are not walls."""
     out: list = []
     walls = getattr(scene, "walls", None)
     if walls is not None and walls.faces:
         n_cells = np.rint((np.asarray(scene.domain_hi) - np.asarray(scene.domain_lo))
                           / scene.dx).astype(np.int64)
-        out.append(Walls(walls.faces, n_cells))
+        out.append(Walls(walls.faces, n_cells, getattr(scene, "periodic", ())))
     out.extend(Collider(spec, scene.dim) for spec in getattr(scene, "colliders", ()))
     return out
 

@@ -44,15 +44,17 @@ def project_face(velocity, mass, use_mass, lo, hi, axis, normal_sign, condition,
 
 class Walls:
     """The 2*dim faces of the domain box (order x-, x+, y-, y+, z-, z+), each sticky, slip or
-    separate with a Coulomb friction coefficient."""
+    separate with a Coulomb friction coefficient. The faces of the ``periodic`` axes (indices)
+    do not act: the grid wraps there (`hpcmpm.parallel`)."""
 
     name = "walls"
 
-    def __init__(self, faces, n_cells):
+    def __init__(self, faces, n_cells, periodic=()):
         self.faces = [(CONDITIONS[f.condition], float(f.friction)) for f in faces]
         self.n_cells = np.asarray(n_cells, dtype=np.int64)
         if len(self.faces) != 2 * len(self.n_cells):
             raise ValueError(f"walls need {2 * len(self.n_cells)} faces, got {len(self.faces)}")
+        self.periodic = tuple(int(a) for a in periodic)
         self._key: tuple | None = None
         self._boxes: list[tuple] = []
 
@@ -75,6 +77,8 @@ class Walls:
         boxes = []
         for face, (condition, friction) in enumerate(self.faces):
             axis, upper = divmod(face, 2)
+            if axis in self.periodic:
+                continue
             lo = np.zeros(3, dtype=np.int64)
             hi = np.array(shape, dtype=np.int64)
             if upper:  # block index of global node n_cells, and everything above it

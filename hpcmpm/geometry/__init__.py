@@ -1,11 +1,29 @@
-"""Samplers that turn a scene's bodies into particles.
+"""Samplers that turn a scene's bodies into particles, one rank's share at a time.
 
 Particles sit on a regular lattice of ``particles_per_cell`` points per axis per cell, at the
 cell-relative offsets ``(k + 1/2) / ppc``, aligned to the global grid so that touching bodies
 tile without gaps or overlaps; each carries the volume ``(dx / ppc)^dim``.
+
+**Lattice order and ids.** A body's lattice points (the lattice inside its bounding box) are
+numbered with axis 0 fastest and the last axis slowest (a *layer* is one index of the last
+axis). Its particles are the points inside the body, in that order; the ids run ``0 .. N-1``
+over the bodies in scene order. Whole x-lines stay together, which keeps the mesh scanline
+test (one pass over the triangles per line) efficient in chunks.
+
+**Per-rank sampling** (`count_scene`, `share_bounds`, `sample_share`): first the exact number
+of inside points per layer, counted in chunks of `CHUNK` lattice points that the ranks share
+round-robin, then one sum-reduction; boxes are counted without a test. No particle is kept
+while counting (memory: one chunk). Rank ``r`` of ``P`` then samples the ids
+``[N r / P, N (r+1) / P)``: the layers holding them, chunk by chunk, keeping only its points.
+The ids come from the counts' prefix sum, so they do not depend on the rank count, and
+neither does anything else: jitter is drawn from the body's PCG64 stream advanced to the
+first point (the numbers a one-rank run draws for it), and the centroid of a spinning body
+is the sum of per-chunk sums over the lattice points, added in chunk order on every rank.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -13,9 +31,13 @@ from ..errors import SceneError
 from ..scene import Scene, body_bounds
 from .mesh import inside_mesh
 
+# Lattice points per inside test: bounds the temporaries of counting and sampling (about
+# 100 B per point in 3D: coordinates, indices, mask) independently of the body size.
+CHUNK = 1 << 18
 
-def lattice(lower, upper, domain_lo, spacing: float) -> np.ndarray:
-    """Lattice points ``domain_lo + (k + 1/2) spacing`` in the half-open box [lower, upper).
+
+def lattice_axes(lower, upper, domain_lo, spacing: float) -> list[np.ndarray]:
+    """Lattice coordinates ``domain_lo + (k + 1/2) spacing`` per axis in [lower, upper).
 
     Half-open so that two bodies sharing a face never both take (or both miss) a point that
     lies exactly on it; the integer range decides membership, not a float comparison."""
@@ -24,8 +46,13 @@ def lattice(lower, upper, domain_lo, spacing: float) -> np.ndarray:
         k0 = int(np.ceil((lo - origin) / spacing - 0.5))
         k1 = int(np.ceil((hi - origin) / spacing - 0.5))
         axes.append(origin + (np.arange(k0, max(k0, k1)) + 0.5) * spacing)
-    grids = np.meshgrid(*axes, indexing="ij")
-    return np.stack([g.ravel() for g in grids], axis=1)
+    return axes
+
+
+def lattice(lower, upper, domain_lo, spacing: float) -> np.ndarray:
+    """All lattice points in the half-open box [lower, upper), in lattice order (n, dim)."""
+    lat = BodyLattice(lattice_axes(lower, upper, domain_lo, spacing), solid=True)
+    return lat.points(0, lat.size)
 
 
 def inside(body, x: np.ndarray, dim: int) -> np.ndarray:
@@ -44,25 +71,180 @@ def inside(body, x: np.ndarray, dim: int) -> np.ndarray:
     return inside_mesh(x, p, dim)
 
 
-def sample_body(body, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """Positions (n, dim) and volumes (n,) of the particles filling ``body``."""
-    dim = scene.dim
+class BodyLattice:
+    """The lattice points of a body's bounding box, numbered in lattice order."""
+
+    def __init__(self, axes: list[np.ndarray], solid: bool):
+        self.axes = axes
+        self.solid = solid  # every point is inside (a box): no inside test
+        self.shape = tuple(len(a) for a in axes)
+        self.size = int(np.prod(self.shape))
+        self.layer_size = int(np.prod(self.shape[:-1]))
+        self.n_layers = self.shape[-1]
+
+    def points(self, g0: int, g1: int) -> np.ndarray:
+        """Coordinates (g1 - g0, dim) of the lattice points g0 .. g1-1."""
+        rest = np.arange(g0, g1, dtype=np.int64)
+        x = np.empty((g1 - g0, len(self.axes)))
+        for a, coords in enumerate(self.axes):
+            rest, k = np.divmod(rest, self.shape[a])
+            x[:, a] = coords[k]
+        return x
+
+
+def body_lattice(body, scene: Scene) -> BodyLattice:
+    lower, upper = body_bounds(body.shape, body.params, scene.dim)
     spacing = scene.dx / scene.particles_per_cell
-    lower, upper = body_bounds(body.shape, body.params, dim)
-    x = lattice(lower, upper, scene.domain_lo, spacing)
-    x = x[inside(body, x, dim)]
-    if body.jitter > 0 and len(x):
-        rng = np.random.default_rng(body.seed)
-        x = x + rng.uniform(-0.5, 0.5, size=x.shape) * body.jitter * spacing
-    return np.ascontiguousarray(x), np.full(len(x), spacing ** dim)
+    return BodyLattice(lattice_axes(lower, upper, scene.domain_lo, spacing),
+                       solid=body.shape == "box")
 
 
-def initial_velocity(body, x: np.ndarray, dim: int) -> np.ndarray:
+@dataclass
+class SceneCounts:
+    """Exact particle counts of a scene's bodies, known on every rank before sampling."""
+
+    lattices: list[BodyLattice]
+    layer_counts: list[np.ndarray]  # per body: inside points per layer, (n_layers,) int64
+    centroids: list[np.ndarray]     # per body: mean of its lattice points inside, (dim,)
+    offsets: np.ndarray             # (n_bodies + 1,): first id of each body, then the total
+
+    @property
+    def total(self) -> int:
+        return int(self.offsets[-1])
+
+    def body_count(self, b: int) -> int:
+        return int(self.offsets[b + 1] - self.offsets[b])
+
+
+def count_scene(scene: Scene, rank: int = 0, size: int = 1, reduce_sum=None) -> SceneCounts:
+    """Exact inside points per layer of every body and each body's centroid, without keeping
+    any particle: rank ``rank`` of ``size`` tests the chunks ``c = rank, rank + size, ...``,
+    then ``reduce_sum`` (an elementwise sum over ranks of a numpy array; identity on one rank)
+    combines them in two reductions. Every rank calls it with the same scene; all get the
+    same result. Raises `SceneError` for a body that holds no particle."""
+    reduce_sum = reduce_sum or (lambda a: a)
+    lattices = [body_lattice(body, scene) for body in scene.bodies]
+    layer_counts, chunk_sums = [], []
+    for body, lat in zip(scene.bodies, lattices):
+        n_chunks = -(-lat.size // CHUNK)
+        if lat.solid:
+            layer_counts.append(np.full(lat.n_layers, lat.layer_size, dtype=np.int64))
+            chunk_sums.append(None)
+            continue
+        counts = np.zeros(lat.n_layers, dtype=np.int64)
+        sums = np.zeros((n_chunks, scene.dim))
+        for c in range(rank, n_chunks, size):
+            g0, g1 = c * CHUNK, min((c + 1) * CHUNK, lat.size)
+            x = lat.points(g0, g1)
+            mask = inside(body, x, scene.dim)
+            index = np.flatnonzero(mask)
+            counts += np.bincount((index + g0) // lat.layer_size, minlength=lat.n_layers)
+            sums[c] = x[index].sum(axis=0)
+        layer_counts.append(counts)
+        chunk_sums.append(sums)
+    tested = [b for b, lat in enumerate(lattices) if not lat.solid]
+    if tested:
+        # Each entry has one contributor, so the sums are exact and the same on every rank
+        # count; the centroids then add the chunk sums in chunk order.
+        all_counts = reduce_sum(np.concatenate([layer_counts[b] for b in tested]))
+        all_sums = reduce_sum(np.concatenate([chunk_sums[b] for b in tested]))
+        start = start_sums = 0
+        for b in tested:
+            n, m = lattices[b].n_layers, len(chunk_sums[b])
+            layer_counts[b] = all_counts[start:start + n]
+            chunk_sums[b] = all_sums[start_sums:start_sums + m]
+            start, start_sums = start + n, start_sums + m
+    totals = np.array([int(c.sum()) for c in layer_counts], dtype=np.int64)
+    for b, n in enumerate(totals):
+        if n == 0:
+            raise SceneError(f"{scene.path}: bodies[{b}]: holds no particles (smaller than "
+                             f"the particle spacing dx / particles_per_cell = "
+                             f"{scene.dx / scene.particles_per_cell:g}?)")
+    centroids = [np.array([a.mean() for a in lat.axes]) if lat.solid
+                 else chunk_sums[b].sum(axis=0) / totals[b] for b, lat in enumerate(lattices)]
+    offsets = np.concatenate([[0], np.cumsum(totals)]).astype(np.int64)
+    return SceneCounts(lattices, layer_counts, centroids, offsets)
+
+
+def estimate_count(scene: Scene) -> tuple[int, bool]:
+    """Particle count from the bodies' shapes alone, without testing any point: exact for
+    boxes, volume / spacing^dim for spheres and cylinders, the bounding lattice for meshes.
+    Returns (count, exact)."""
+    spacing = scene.dx / scene.particles_per_cell
+    total, exact = 0.0, True
+    for body in scene.bodies:
+        lat = body_lattice(body, scene)
+        p = body.params
+        if body.shape == "sphere":
+            volume = np.pi * p["radius"] ** 2 if scene.dim == 2 else \
+                4.0 / 3.0 * np.pi * p["radius"] ** 3
+            total += min(volume / spacing ** scene.dim, lat.size)
+            exact = False
+        elif body.shape == "cylinder":
+            total += min(np.pi * p["radius"] ** 2 * p["length"] / spacing ** 3, lat.size)
+            exact = False
+        else:
+            total += lat.size
+            exact = exact and body.shape == "box"
+    return int(round(total)), exact
+
+
+def share_bounds(total: int, rank: int, size: int) -> tuple[int, int]:
+    """The ids ``[start, stop)`` rank ``rank`` of ``size`` samples: equal shares in id order."""
+    return total * rank // size, total * (rank + 1) // size
+
+
+def sample_body_range(body, scene: Scene, lat: BodyLattice, layer_counts: np.ndarray,
+                      a: int, b: int) -> np.ndarray:
+    """Positions (b - a, dim) of the body's particles a .. b-1 (in lattice order), jittered.
+
+    Tests only the layers that hold them, a chunk at a time, keeping just the wanted points."""
+    out = np.empty((b - a, scene.dim))
+    if b <= a:
+        return out
+    if lat.solid:
+        for g in range(a, b, CHUNK):
+            out[g - a:min(g + CHUNK, b) - a] = lat.points(g, min(g + CHUNK, b))
+    else:
+        cum = np.cumsum(layer_counts)
+        k0 = int(np.searchsorted(cum, a, side="right"))
+        k1 = int(np.searchsorted(cum, b - 1, side="right"))
+        seen = int(cum[k0 - 1]) if k0 else 0  # body index of the next inside point
+        filled = 0
+        for g in range(k0 * lat.layer_size, (k1 + 1) * lat.layer_size, CHUNK):
+            x = lat.points(g, min(g + CHUNK, (k1 + 1) * lat.layer_size))
+            x = x[inside(body, x, scene.dim)]
+            lo, hi = max(a - seen, 0), min(b - seen, len(x))
+            if hi > lo:
+                out[filled:filled + hi - lo] = x[lo:hi]
+                filled += hi - lo
+            seen += len(x)
+            if seen >= b:
+                break
+    if body.jitter > 0:
+        spacing = scene.dx / scene.particles_per_cell
+        rng = np.random.Generator(np.random.PCG64(body.seed))
+        rng.bit_generator.advance(a * scene.dim)  # one 64-bit draw per coordinate
+        out += rng.uniform(-0.5, 0.5, size=out.shape) * body.jitter * spacing
+    return out
+
+
+def sample_body(body, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (n, dim) and volumes (n,) of the particles filling ``body`` (one process)."""
+    b = scene.bodies.index(body)
+    counts = count_scene(scene)
+    n = counts.body_count(b)
+    spacing = scene.dx / scene.particles_per_cell
+    x = sample_body_range(body, scene, counts.lattices[b], counts.layer_counts[b], 0, n)
+    return x, np.full(n, spacing ** scene.dim)
+
+
+def initial_velocity(body, x: np.ndarray, dim: int, centroid: np.ndarray) -> np.ndarray:
     """Body velocity plus rigid spin about the body's centroid, plus an optional field."""
     v = np.tile(np.asarray(body.velocity, dtype=np.float64), (len(x), 1))
     if len(x) == 0:
         return v
-    r = x - x.mean(axis=0)
+    r = x - centroid
     w = body.angular_velocity
     if dim == 2:
         v += float(w) * np.stack([-r[:, 1], r[:, 0]], axis=1)
@@ -75,20 +257,34 @@ def initial_velocity(body, x: np.ndarray, dim: int) -> np.ndarray:
     return v
 
 
-def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
-    """Every body's particles: x, v, mass, vol0, group (material index), id (0..N-1 in body
-    order; deterministic, so every rank computes the same ids)."""
+def sample_share(scene: Scene, counts: SceneCounts, start: int, stop: int) -> dict:
+    """Particles with ids ``[start, stop)``: x, v, mass, vol0, group (material index), id."""
+    spacing = scene.dx / scene.particles_per_cell
+    vol = spacing ** scene.dim
     parts = []
-    for index, body in enumerate(scene.bodies):
-        x, vol = sample_body(body, scene)
-        if len(x) == 0:
-            raise SceneError(f"{scene.path}: bodies[{index}]: holds no particles (smaller than "
-                             f"the particle spacing dx / particles_per_cell = "
-                             f"{scene.dx / scene.particles_per_cell:g}?)")
+    for b, body in enumerate(scene.bodies):
+        a, e = max(start, counts.offsets[b]), min(stop, counts.offsets[b + 1])
+        if e <= a:
+            continue
+        first = int(counts.offsets[b])
+        x = sample_body_range(body, scene, counts.lattices[b], counts.layer_counts[b],
+                              int(a - first), int(e - first))
         group = scene.material_index(body.material)
         density = scene.materials[group].density
-        parts.append({"x": x, "v": initial_velocity(body, x, scene.dim), "mass": density * vol,
-                      "vol0": vol, "group": np.full(len(x), group, dtype=np.int32)})
-    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
-    out["id"] = np.arange(len(out.get("x", ())), dtype=np.int64)
-    return out
+        parts.append({"x": x, "v": initial_velocity(body, x, scene.dim, counts.centroids[b]),
+                      "mass": np.full(len(x), density * vol), "vol0": np.full(len(x), vol),
+                      "group": np.full(len(x), group, dtype=np.int32),
+                      "id": np.arange(a, e, dtype=np.int64)})
+    if not parts:
+        return {"x": np.empty((0, scene.dim)), "v": np.empty((0, scene.dim)),
+                "mass": np.empty(0), "vol0": np.empty(0), "group": np.empty(0, np.int32),
+                "id": np.empty(0, np.int64)}
+    if len(parts) == 1:
+        return parts[0]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
+    """Every body's particles in one process: x, v, mass, vol0, group, id (0..N-1)."""
+    counts = count_scene(scene)
+    return sample_share(scene, counts, 0, counts.total)

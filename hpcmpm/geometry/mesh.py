@@ -7,6 +7,7 @@ triangle mesh (point in any triangle).
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from pathlib import Path
@@ -21,7 +22,19 @@ class MeshError(Exception):
 
 def load_mesh(path: Path, dim: int) -> tuple[np.ndarray, tuple[str, np.ndarray]]:
     """Points (n, dim) and (cell kind, connectivity) of the first usable cell block: tetra
-    before triangle in 3D (a volume mesh may also carry its boundary triangles)."""
+    before triangle in 3D (a volume mesh may also carry its boundary triangles).
+
+    Read once per file version: the samplers test a body chunk by chunk."""
+    try:
+        stat = Path(path).stat()
+        version = (stat.st_mtime_ns, stat.st_size)
+    except OSError:
+        version = None
+    return _load_mesh(str(path), dim, version)
+
+
+@functools.lru_cache(maxsize=8)
+def _load_mesh(path: str, dim: int, version) -> tuple[np.ndarray, tuple[str, np.ndarray]]:
     import meshio
 
     try:
@@ -36,8 +49,11 @@ def load_mesh(path: Path, dim: int) -> tuple[np.ndarray, tuple[str, np.ndarray]]
     for kind in kinds:
         for block in mesh.cells:
             if block.type == kind and len(block.data):
-                points = np.asarray(mesh.points, dtype=np.float64)[:, :dim]
-                return np.ascontiguousarray(points), (kind, np.asarray(block.data, np.int64))
+                points = np.ascontiguousarray(np.asarray(mesh.points, np.float64)[:, :dim])
+                cells = np.asarray(block.data, np.int64)
+                points.setflags(write=False)  # shared by every caller through the cache
+                cells.setflags(write=False)
+                return points, (kind, cells)
     found = ", ".join(sorted({b.type for b in mesh.cells})) or "none"
     raise MeshError(f"mesh {path} has no {' or '.join(kinds)} cells (found: {found})")
 

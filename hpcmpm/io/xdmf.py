@@ -2,26 +2,64 @@
 
 An XDMF 3 file with one ``Collection`` grid (``CollectionType="Temporal"``) whose children are
 ``Uniform`` grids, one per frame file on disk: ``<Time Value>``, a ``Polyvertex`` topology of
-``n_particles`` points, the geometry ``/particles/x`` (``XYZ`` in 3D, ``XY`` in 2D, which
+``n_particles`` points with an explicit connectivity 0..n-1, the geometry ``/particles/x`` (``XYZ`` in 3D, ``XY`` in 2D, which
 ParaView pads with z = 0) and node-centred attributes for every other dataset: ``id``, ``mass``,
 ``material`` and scalar extras as ``Scalar``, ``v`` as ``Vector``, ``F`` as ``Tensor`` (9
 components) in 3D and ``Matrix`` (4 components, row-major F11 F12 F21 F22) in 2D. Paths to the
 HDF5 files are relative, so the output folder can be moved. Rank 0 rewrites the file atomically
 after every frame, from the frame files that exist, so it never names a missing file.
+
+The connectivity: ParaView 5.11's Xdmf3 readers build no cells from a ``Polyvertex`` topology
+given without one (n points, 0 cells: the default Surface and Points representations draw
+nothing). With an integer ``DataItem`` 0..n-1 they build n vertex cells. The array is the same
+for every frame of n particles, so it is written once per particle count, into
+``polyvertex_<n>.h5:/connectivity`` (int32 below 2**31 particles), and shared by those frames:
+4 B a particle per run instead of per frame.
 """
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
-from .shared import write_text_atomically
+from .shared import tmp_name, write_text_atomically
 
 XDMF_NAME = "particles.xdmf"
 FRAME_PATTERN = re.compile(r"^frame_(\d+)\.h5$")
+CONNECTIVITY_DATASET = "connectivity"
+# Rows of the connectivity written at once: bounds rank 0's memory for huge particle counts.
+CONNECTIVITY_CHUNK = 1 << 24
+
+
+def connectivity_name(n: int) -> str:
+    """File holding the Polyvertex connectivity 0..n-1 shared by every frame of n particles."""
+    return f"polyvertex_{int(n)}.h5"
+
+
+def connectivity_dtype(n: int) -> np.dtype:
+    return np.dtype(np.int32 if n < 2**31 else np.int64)
+
+
+def write_connectivity(out_dir: Path, n: int) -> Path:
+    """Write ``polyvertex_<n>.h5`` unless it exists (atomically: tmp + rename)."""
+    import h5py
+
+    path = Path(out_dir) / connectivity_name(n)
+    if path.exists():
+        return path
+    tmp = tmp_name(path)
+    with h5py.File(tmp, "w") as h5:
+        dtype = connectivity_dtype(n)
+        dset = h5.create_dataset(CONNECTIVITY_DATASET, (n,), dtype=dtype)
+        for start in range(0, n, CONNECTIVITY_CHUNK):
+            stop = min(n, start + CONNECTIVITY_CHUNK)
+            dset[start:stop] = np.arange(start, stop, dtype=dtype)
+    os.replace(tmp, path)
+    return path
 
 
 def number_type(dtype) -> tuple[str, int]:
@@ -47,11 +85,12 @@ def attribute_type(shape: tuple[int, ...], dim: int) -> str:
     return "Matrix"
 
 
-def data_item(file: str, dataset: str, shape, dtype, indent: str) -> str:
+def data_item(file: str, dataset: str, shape, dtype, indent: str,
+              group: str = "/particles/") -> str:
     kind, precision = number_type(dtype)
     dims = " ".join(str(int(s)) for s in shape)
     return (f'{indent}<DataItem Dimensions="{dims}" NumberType="{kind}" '
-            f'Precision="{precision}" Format="HDF">{escape(file)}:/particles/{dataset}'
+            f'Precision="{precision}" Format="HDF">{escape(file)}:{group}{dataset}'
             f'</DataItem>\n')
 
 
@@ -62,7 +101,10 @@ def frame_grid(file: str, time: float, dim: int, n: int,
     out = [f'      <Grid Name={quoteattr(name)} GridType="Uniform">\n',
            f'        <Time Value="{float(time)!r}"/>\n',
            f'        <Topology TopologyType="Polyvertex" NumberOfElements="{n}" '
-           f'NodesPerElement="1"/>\n',
+           f'NodesPerElement="1">\n',
+           data_item(connectivity_name(n), CONNECTIVITY_DATASET, (n,), connectivity_dtype(n),
+                     "          ", group="/"),
+           '        </Topology>\n',
            f'        <Geometry GeometryType="{"XYZ" if dim == 3 else "XY"}">\n',
            data_item(file, "x", *shapes["x"], "          "),
            '        </Geometry>\n']
@@ -132,6 +174,8 @@ class FrameCatalog:
         return found
 
     def write(self) -> Path:
+        """Rewrite ``particles.xdmf`` (and any missing connectivity file) from the frames on
+        disk."""
         files = self.on_disk()
         self.entries = {i: e for i, e in self.entries.items() if i in files}
         for index, path in files.items():
@@ -141,6 +185,8 @@ class FrameCatalog:
                 except (OSError, KeyError):
                     continue
         body = []
+        for n in {entry[2] for entry in self.entries.values()}:
+            write_connectivity(self.out_dir, n)
         for i in sorted(self.entries):
             key = (i, files[i].name)
             if key not in self._grids:

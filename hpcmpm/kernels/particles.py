@@ -42,15 +42,34 @@ def scan_health(x, v, F, bad, max_report):
     return math.sqrt(vmax2), nbad
 
 
+# Sort-key cells are clamped to [-SORT_CELL_LIMIT, SORT_CELL_LIMIT) per axis (2**17 in 3D,
+# 2**26 in 2D): then (cells per axis)^dim * groups stays below 2**62 for up to 256 groups, so
+# a particle flung far outside the domain cannot overflow the key and break the group
+# order. Clamping merges far cells into one key, which only coarsens the cell order there.
+SORT_CELL_LIMIT_2D, SORT_CELL_LIMIT_3D = 1 << 26, 1 << 17
+
+
+@njit(cache=True)
+def _sort_cell(x, lo, inv_dx, limit):
+    c = (x - lo) * inv_dx
+    if not (c > -limit):  # NaN too: a broken particle, reported by the health check
+        return -limit
+    if c >= limit:
+        return limit - 1
+    return int(math.floor(c))
+
+
 @njit(cache=True)
 def cell_sort_keys(x, group, domain_lo, inv_dx, keys):
     """Sort key ``(group, cell)`` packed in an int64: cells in row-major order over the
     particles' bounding box of cells, groups outermost so each material's particles are one
-    contiguous slice. Writes ``keys`` (n,); returns the number of distinct key values
-    (1 + the largest possible key), for a counting sort."""
+    contiguous slice. Cells are clamped to +-SORT_CELL_LIMIT so the key cannot overflow.
+    Writes ``keys`` (n,); returns the number of distinct key values (1 + the largest
+    possible key), for a counting sort."""
     n, dim = x.shape
     if n == 0:
         return 0
+    limit = SORT_CELL_LIMIT_3D if dim == 3 else SORT_CELL_LIMIT_2D
     lo = np.empty(dim, dtype=np.int64)
     hi = np.empty(dim, dtype=np.int64)
     for a in range(dim):
@@ -58,7 +77,7 @@ def cell_sort_keys(x, group, domain_lo, inv_dx, keys):
         hi[a] = -(1 << 62)
     for p in range(n):
         for a in range(dim):
-            c = int(math.floor((x[p, a] - domain_lo[a]) * inv_dx))
+            c = _sort_cell(x[p, a], domain_lo[a], inv_dx, limit)
             lo[a] = min(lo[a], c)
             hi[a] = max(hi[a], c)
     ncell = 1
@@ -67,7 +86,7 @@ def cell_sort_keys(x, group, domain_lo, inv_dx, keys):
     for p in range(n):
         lin = 0
         for a in range(dim):
-            c = int(math.floor((x[p, a] - domain_lo[a]) * inv_dx))
+            c = _sort_cell(x[p, a], domain_lo[a], inv_dx, limit)
             lin = lin * (hi[a] - lo[a] + 1) + (c - lo[a])
         keys[p] = group[p] * ncell + lin
     n_groups = 0

@@ -13,17 +13,20 @@ from typing import Any
 from ..errors import SceneError
 from .base import ElasticMaterial, Material, Param, check_params, lame
 from .fixed_corotated import FixedCorotated
+from .herschel_bulkley import HerschelBulkley
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
+from .oldroyd_b import OldroydB
 from .peridynamic import Peridynamic
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
+from .von_mises import VonMises
 from .weakly_compressible import WeaklyCompressible
 
 MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
-                WeaklyCompressible, Peridynamic)
+                WeaklyCompressible, OldroydB, HerschelBulkley, VonMises, Peridynamic)
 }
 
 
@@ -40,7 +43,7 @@ def validate_params(type_name: str, params: dict[str, Any]) -> list[str]:
     cls = MATERIALS.get(type_name)
     if cls is None:
         return [_unknown_type(type_name)]
-    return check_params(cls.parameters, params)
+    return cls.parameter_problems(params)
 
 
 def make_material(spec, dim: int) -> Material:
@@ -54,5 +57,5 @@ def make_material(spec, dim: int) -> Material:
 
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
            "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
-           "Peridynamic",
-           "StableNeoHookean", "Snow", "WeaklyCompressible"]
+           "StableNeoHookean", "Snow", "WeaklyCompressible", "OldroydB", "HerschelBulkley",
+           "VonMises", "Peridynamic"]

@@ -212,7 +212,7 @@ class Material:
     def __init__(self, spec, dim: int):
         if dim not in (2, 3):
             raise ValueError(f"dim must be 2 or 3, got {dim}")
-        problems = check_params(self.parameters, dict(spec.params))
+        problems = type(self).parameter_problems(dict(spec.params))
         if not (math.isfinite(spec.density) and spec.density > 0.0):
             problems.append(f"density: must be > 0, got {spec.density:g}")
         if problems:
@@ -226,6 +226,13 @@ class Material:
         # One line per particle whose state became unrecoverable in a kernel (the kernel
         # also writes NaN into its J or F, which the health check finds).
         self.failures: list[str] = []
+
+    @classmethod
+    def parameter_problems(cls, params: dict[str, Any]) -> list[str]:
+        """Problems with a scene's parameters: the schema check, plus any rule between keys a
+        model adds (e.g. "mu and lambda, or E and nu"); `validate_params` and __init__ use
+        it."""
+        return check_params(cls.parameters, params)
 
     def configure(self, scene) -> None:
         """Called once the scene is known (grid spacing, time-step limits): a model that

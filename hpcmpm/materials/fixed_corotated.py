@@ -14,6 +14,7 @@ from numba import njit
 
 from .base import ElasticMaterial
 from .decompositions import polar2, polar3
+from .implicit import COROTATED, ImplicitF
 from .tensors import det2, det3, load2, load3, mul2_bt, mul3_bt, store2, store3
 
 
@@ -96,9 +97,10 @@ def _energy_3d(F, vol0, mu, lam):
     return total
 
 
-class FixedCorotated(ElasticMaterial):
+class FixedCorotated(ImplicitF, ElasticMaterial):
     """Fixed corotated solid, 003 eq. 3.5 (Stomakhin 2012)."""
 
     name = "fixed_corotated"
+    implicit_model = COROTATED
     stress_kernels = {2: _stress_2d, 3: _stress_3d}
     energy_kernels = {2: _energy_2d, 3: _energy_3d}

@@ -10,6 +10,7 @@ from __future__ import annotations
 from numba import njit
 
 from .base import ElasticMaterial
+from .implicit import LINEAR, ImplicitF
 from .tensors import load2, load3, mul2_bt, mul3_bt, store2, store3
 
 
@@ -62,10 +63,11 @@ def _energy(F, vol0, mu, lam):
     return total
 
 
-class LinearElastic(ElasticMaterial):
+class LinearElastic(ImplicitF, ElasticMaterial):
     """Hooke's law on eps = sym(F) - I; Kirchhoff stress tau = P F^T with
     P = 2 mu eps + lam tr(eps) I."""
 
     name = "linear_elastic"
+    implicit_model = LINEAR
     stress_kernels = {2: _stress_2d, 3: _stress_3d}
     energy_kernels = {2: _energy, 3: _energy}

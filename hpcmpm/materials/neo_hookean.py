@@ -16,6 +16,7 @@ import math
 from numba import njit
 
 from .base import ElasticMaterial
+from .implicit import NEO_HOOKEAN, ImplicitF
 from .tensors import det2, det3, frob2, frob3, load2, load3, mul2_bt, mul3_bt, store2, store3
 
 
@@ -62,9 +63,10 @@ def _energy_3d(F, vol0, mu, lam):
     return total
 
 
-class NeoHookean(ElasticMaterial):
+class NeoHookean(ImplicitF, ElasticMaterial):
     """Compressible Neo-Hookean solid, 003 eq. 3.8; needs det F > 0."""
 
     name = "neo_hookean"
+    implicit_model = NEO_HOOKEAN
     stress_kernels = {2: _stress_2d, 3: _stress_3d}
     energy_kernels = {2: _energy_2d, 3: _energy_3d}

@@ -43,6 +43,7 @@ from numba import njit
 from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, YOUNG, Material, Param, lame
 from .decompositions import v_diag_vt, polar2, polar3, svd2, svd3
+from .implicit import COROTATED, ImplicitF
 from .fixed_corotated import corotated_psi_2d, corotated_psi_3d, corotated_tau_2d, corotated_tau_3d
 from .tensors import load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
 
@@ -139,7 +140,7 @@ def _energy_3d(F, Jp, vol0, mu0, lam0, xi, max_exponent):
     return total
 
 
-class Snow(Material):
+class Snow(ImplicitF, Material):
     """Stomakhin 2013 snow: clamped fixed corotated elasticity with (de)hardening; F holds F_E."""
 
     name = "snow"
@@ -160,6 +161,7 @@ class Snow(Material):
                                   "finite; default |xi|"),
     }
     fields = {"Fp": FieldSpec(TENSOR, "f8", "identity"), "Jp": FieldSpec(SCALAR, "f8", 1.0)}
+    implicit_model = COROTATED  # elastic at the current F_E; the clamp acts after the solve
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
@@ -172,6 +174,10 @@ class Snow(Material):
         self._project = _project_2d if dim == 2 else _project_3d
         self._stress = _stress_2d if dim == 2 else _stress_3d
         self._energy = _energy_2d if dim == 2 else _energy_3d
+
+    def implicit_moduli(self, fields) -> tuple:
+        """(mu0, lam0, Jp, xi, max_exponent): the kernels harden per particle."""
+        return self.mu, self.lam, fields["Jp"], self.xi, self.max_exponent
 
     def hardening(self, Jp: float) -> float:
         """The factor h(Jp) on mu0 and lam0."""

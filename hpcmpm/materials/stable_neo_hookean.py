@@ -39,6 +39,7 @@ import math
 from numba import njit
 
 from .base import ElasticMaterial
+from .implicit import STABLE_NH, ImplicitF
 from .tensors import det2, det3, frob2, frob3, load2, load3, mul2_bt, mul3_bt, store2, store3
 
 
@@ -98,12 +99,13 @@ def _energy_3d(F, vol0, mu, lam):
     return total
 
 
-class StableNeoHookean(ElasticMaterial):
+class StableNeoHookean(ImplicitF, ElasticMaterial):
     """Stable Neo-Hookean solid, 003 eq. 7.1-7.2 (Smith 2018); defined for any F, inverted
     included. self.mu, self.lam are the small-strain moduli (wave speed); the kernels get the
     reparameterised pair of the energy (module docstring)."""
 
     name = "stable_neo_hookean"
+    implicit_model = STABLE_NH
     stress_kernels = {2: _stress_2d, 3: _stress_3d}
     energy_kernels = {2: _energy_2d, 3: _energy_3d}
 

@@ -22,10 +22,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from ..kernels.deformation import volume_ratio
 from .base import Material, Param
+from .implicit import j_energy, j_gradient, j_hessian
+from .matrix import EYE
 from .tensors import det2, det3, load2, load3
 
 
@@ -120,6 +123,7 @@ class WeaklyCompressible(Material):
     parameters = {"E": Param(0.0, math.inf, doc="bulk modulus (stress units); tau = E (J - 1) I")}
     fields = {}
     deformation = "J"
+    implicit = True
 
     def __init__(self, spec, dim: int):
         super().__init__(spec, dim)
@@ -140,6 +144,26 @@ class WeaklyCompressible(Material):
             _stress_from_F(fields["F"], fields["tau"], self.params["E"])
         else:
             _stress_from_J(fields["J"], fields["tau"], self.params["E"])
+
+    def _volume_ratio(self, fields) -> np.ndarray:
+        """J^n (n,): the stored J, or det F when the scene carries F."""
+        return np.linalg.det(fields["F"]) if "F" in fields else fields["J"]
+
+    def implicit_energy(self, fields, L, dt: float) -> float:
+        """sum_p V0 E (J_hat - 1 - ln J_hat), J_hat = det(I + dt L_p) J_p^n; +inf if a
+        J_hat <= 0 (`hpcmpm.materials.implicit`)."""
+        return float(j_energy(EYE[self.dim], self._volume_ratio(fields), fields["vol0"], L, dt,
+                              self.params["E"]))
+
+    def implicit_gradient(self, fields, L, dt: float, G) -> None:
+        """Writes G (n, d, d), G_p = dt V0 E (J_hat - 1) (I + dt L_p)^-T."""
+        j_gradient(EYE[self.dim], self._volume_ratio(fields), fields["vol0"], L, dt,
+                   self.params["E"], G)
+
+    def implicit_hessian(self, fields, L, dt: float, dL, dG) -> None:
+        """Writes dG (n, d, d), dG_p = D^2 e_p(L_p)[dL_p]."""
+        j_hessian(EYE[self.dim], self._volume_ratio(fields), fields["vol0"], L, dt,
+                  self.params["E"], dL, dG)
 
     def energy(self, fields) -> float:
         """sum_p vol0_p E (J_p - 1 - ln J_p)."""

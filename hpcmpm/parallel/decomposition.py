@@ -1,7 +1,8 @@
 """Recursive coordinate bisection (RCB) of the cell index space, and the owner lookup.
 
 A rank owns a box of cells ``[lo, hi)`` (global indices, ARCHITECTURE.md); the boxes tile the
-whole index space, the outermost faces sitting at ``+-BIG``. The bisection is computed from
+whole index space, the outermost faces sitting at ``+-BIG`` (at ``0`` and ``n_cells`` on a
+periodic axis, whose positions are wrapped into the domain). The bisection is computed from
 global histograms only, so every rank derives the same boxes from the same reductions.
 """
 
@@ -53,7 +54,14 @@ def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
     n = x.shape[0]
     index = np.empty(n, dtype=np.int64)
     owner = np.empty(n, dtype=np.int64)
-    k = leavers(x, domain_lo, inv_dx, boxes, me, index, owner)
+    search = np.empty(boxes.shape[0], dtype=np.int64)
+    search[0] = me
+    k = 1
+    for b in range(boxes.shape[0]):
+        if b != me:
+            search[k] = b
+            k += 1
+    k = leavers(x, domain_lo, inv_dx, boxes, search, index, owner)
     for p in range(n):
         out[p] = me
     for j in range(k):
@@ -62,16 +70,19 @@ def owner_ranks(x, domain_lo, inv_dx, boxes, me, out):
 
 
 @njit(cache=True)
-def leavers(x, domain_lo, inv_dx, boxes, me, index, owner):
-    """Particles whose cell is outside this rank's box (``boxes[me]``): writes their indices
-    (increasing) to ``index`` and their owners to ``owner`` (both at least as long as x) and
-    returns how many. Non-finite positions stay (the instability guard reports them).
+def leavers(x, domain_lo, inv_dx, boxes, search, index, owner):
+    """Particles whose cell is outside this rank's box (``boxes[search[0]]``): writes their
+    indices (increasing) to ``index`` and their owners to ``owner`` (both at least as long as
+    x) and returns how many. The other boxes are tried in the order of ``search`` (the
+    neighbours first: a step's leavers stop there). Non-finite positions stay (the
+    instability guard reports them), as do positions in no box (beyond +-BIG cells).
 
     floor(xi) >= lo <=> xi >= lo and floor(xi) < hi <=> xi < hi for integers lo, hi, so the
     cell test compares the grid coordinate with the box as floats, without a floor; the
     own box is held in scalars, the test most particles end with."""
     n, dim = x.shape
     three = dim == 3
+    me = search[0]
     flo = boxes[:, 0, :].astype(np.float64)
     fhi = boxes[:, 1, :].astype(np.float64)
     d0, d1 = domain_lo[0], domain_lo[1]
@@ -88,9 +99,8 @@ def leavers(x, domain_lo, inv_dx, boxes, me, index, owner):
             continue
         if not (abs(c0) < BIG and abs(c1) < BIG and abs(c2) < BIG):  # false for NaN too
             continue
-        for b in range(boxes.shape[0]):
-            if b == me:
-                continue
+        for j in range(1, search.shape[0]):
+            b = search[j]
             if (c0 >= flo[b, 0] and c0 < fhi[b, 0] and c1 >= flo[b, 1] and c1 < fhi[b, 1]
                     and (not three or (c2 >= flo[b, 2] and c2 < fhi[b, 2]))):
                 index[count] = p
@@ -165,6 +175,35 @@ def points_in_boxes(x, lo, hi):
     return counts, index
 
 
+@njit(cache=True)
+def wrap_periodic(x, domain_lo, inv_dx, dx, period):
+    """Wrap positions into the domain along the periodic axes, in place:
+    ``x <- lo + (x - lo) mod L`` with ``L = period * dx`` (``period[a] = 0``: axis a is not
+    periodic). Positions already inside (most of them) are only compared; non-finite ones are
+    left for the instability guard. Returns the number of coordinates wrapped.
+
+    ``(x - lo) mod L`` can round up to ``L`` (a coordinate a hair below ``lo``); the image of
+    the upper face is the lower one, so such a coordinate becomes ``lo``. The test uses the
+    cell expression of the transfer kernels, so a wrapped particle's cell is in [0, period)."""
+    n, dim = x.shape
+    wrapped = 0
+    for p in range(n):
+        for a in range(dim):
+            m = period[a]
+            if m == 0:
+                continue
+            xi = (x[p, a] - domain_lo[a]) * inv_dx
+            if (xi >= 0.0 and xi < m) or not math.isfinite(xi):
+                continue
+            y = domain_lo[a] + (x[p, a] - domain_lo[a]) % (m * dx)
+            xi = (y - domain_lo[a]) * inv_dx
+            if not (xi >= 0.0 and xi < m):
+                y = domain_lo[a]
+            x[p, a] = y
+            wrapped += 1
+    return wrapped
+
+
 def _choose_cut(hist: np.ndarray, first: int, n_left: int, n_ranks: int) -> int:
     """Cell index ``c`` that puts the weighted ``n_left/n_ranks`` quantile of ``hist`` (counts
     of cells ``first, first+1, ...``) below it; both sides keep at least one cell column."""
@@ -192,7 +231,8 @@ def _empty_cut(lo: np.ndarray, hi: np.ndarray, n_cells: np.ndarray, n_left: int,
 
 def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
                         reduce_max: Callable[[np.ndarray], np.ndarray],
-                        reduce_sum: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+                        reduce_sum: Callable[[np.ndarray], np.ndarray],
+                        periodic=None) -> np.ndarray:
     """Boxes of cells, one per rank, by recursive coordinate bisection weighted by particles.
 
     The rank range of a box is split in two (``floor``/``ceil`` halves); the box is cut along
@@ -203,17 +243,22 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
 
     cells : (n, dim) int64 cells of this rank's particles.
     reduce_max, reduce_sum : elementwise reductions of int64 arrays over all ranks.
+    periodic : (dim,) bool, axes whose cells wrap: there the boxes tile ``[0, n_cells)``
+        exactly (no particle lies outside once positions are wrapped), elsewhere the outermost
+        faces sit at ``+-BIG``.
     Returns boxes (size, 2, dim) int64, ``boxes[r] = [lo, hi)``.
     """
     dim = cells.shape[1]
     n_cells = np.asarray(n_cells, dtype=np.int64)
+    periodic = np.zeros(dim, bool) if periodic is None else np.asarray(periodic, bool)
     # Cells beyond the domain are clamped for the histograms only: every cut lies inside
     # [0, n_cells], so a clamped cell falls on the same side of it as the true one.
     if len(cells) and (cells.min() < -1 or np.any(cells.max(axis=0) > n_cells)):
         cells = np.clip(cells, -1, n_cells)  # a copy only when some particle is outside
     boxes = np.empty((size, 2, dim), dtype=np.int64)
     # Tree nodes of the current level: (first rank, end rank, lo, hi, particle index).
-    level = [(0, size, np.full(dim, -BIG, np.int64), np.full(dim, BIG, np.int64),
+    level = [(0, size, np.where(periodic, 0, -BIG).astype(np.int64),
+              np.where(periodic, n_cells, BIG).astype(np.int64),
               np.arange(len(cells)))]
     while level:
         for r0, r1, lo, hi, _ in level:
@@ -257,6 +302,18 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
             children.append((r0 + n_left, r1, lo_right, hi, index[~left]))
         level = children
     return boxes
+
+
+def neighbour_ranks(boxes: np.ndarray, me: int, shifts: np.ndarray, reach: int) -> np.ndarray:
+    """Ranks whose box, or one of its images ``box + shift``, meets box ``me`` expanded by
+    ``reach`` cells (symmetric: expanding either box is the same test). Sorted, without me."""
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    mine_lo, mine_hi = boxes[me, 0] - reach, boxes[me, 1] + reach
+    found = np.zeros(len(boxes), dtype=bool)
+    for s in shifts:
+        found |= np.all(np.minimum(mine_hi, hi + s) > np.maximum(mine_lo, lo + s), axis=1)
+    found[me] = False
+    return np.flatnonzero(found).astype(np.int64)
 
 
 def intersect(lo_a, hi_a, lo_b, hi_b):

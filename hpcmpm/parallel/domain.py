@@ -11,31 +11,61 @@ so a rank's support box is ``[min cell - 1, max cell + 3)``.
 
 from __future__ import annotations
 
+import itertools
 import sys
 from dataclasses import dataclass, field
 
 import numpy as np
 from mpi4py import MPI
 
-from .comm import Communicator
-from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers, owner_ranks,
-                            particle_cells, points_in_boxes, recursive_bisection)
+from .comm import Communicator, CountingComm
+from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers,
+                            neighbour_ranks, owner_ranks, particle_cells, points_in_boxes,
+                            recursive_bisection, wrap_periodic)
 from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
-                       pack_region, pack_rows, region_size, region_slices, row_dtype,
-                       unpack_region, unpack_rows)
+                       pack_regions, pack_rows, region_slices, regions_size, row_dtype, unpack_regions,
+                       unpack_rows)
 
 # Kernel support around a particle's cell, in nodes: 1 below, 2 above (quadratic and cubic).
 GHOST_BELOW, GHOST_ABOVE = 1, 2
+# Cells around a rank's box within which its neighbours' boxes lie. A rank's particles stay in
+# its box (every step ends with `migrate`), so its support is inside [lo - 1, hi + 2); 3 also
+# covers a particle that crossed a face by less than 2 cells in one step (CFL <= 2).
+NEIGHBOUR_REACH = 3
+
+
+def _max_then_sum(inbuf, inoutbuf, datatype) -> None:
+    """MPI reduction of float64 vectors ``[k, max_1 .. max_k, sum_1 ..]``: elementwise max of
+    the first k + 1 entries, sum of the rest. Counts are integers below 2**53: exact."""
+    a = np.frombuffer(inbuf, dtype=np.float64)
+    b = np.frombuffer(inoutbuf, dtype=np.float64)
+    k = int(a[0]) + 1
+    np.maximum(a[:k], b[:k], out=b[:k])
+    b[k:] += a[k:]
+
+
+_MAX_THEN_SUM = None
+
+
+def max_then_sum_op():
+    global _MAX_THEN_SUM
+    if _MAX_THEN_SUM is None:
+        _MAX_THEN_SUM = MPI.Op.Create(_max_then_sum, commute=True)
+    return _MAX_THEN_SUM
 
 
 @dataclass
 class GridPlan:
-    """Who exchanges which node boxes this step; recomputed only when the gathered support
-    boxes or the decomposition change.
+    """Who exchanges which node boxes this step; recomputed only when the support boxes of
+    this rank or of its neighbours, or the decomposition, change.
 
-    ``to_owners[k] = (r, lo, hi)``: nodes of rank ``r``'s owned box that my particles touch
-    (I send my partial sums there; ``fill_ghosts`` receives the owner's values there).
-    ``from_touchers[k] = (r, lo, hi)``: my owned nodes that rank ``r``'s particles touch.
+    ``to_owners[k] = (r, [(lo, hi), ...])``: boxes of my block (global node indices, as my
+    block holds them) that are nodes of rank ``r``'s owned box, directly or through a periodic
+    image (I send my partial sums there; ``fill_ghosts`` receives the owner's values there).
+    ``from_touchers[k] = (r, [(lo, hi), ...])``: my owned nodes that rank ``r``'s particles
+    touch, in the same order as ``r`` lists the matching boxes. Both lists are in rank order
+    and each rank's boxes in the order of `Domain.shifts`; ``r`` may be this rank itself when
+    a periodic axis wraps its support onto its own owned nodes (copied, not sent).
     """
 
     key: bytes
@@ -54,9 +84,12 @@ class Domain(Communicator):
     dx : grid spacing.
     domain_lo, domain_hi : corners of the domain box (dim,).
     comm : an mpi4py communicator or a `Communicator` (``COMM_WORLD`` by default).
+    periodic : indices of the periodic axes (``Scene.periodic``). Along such an axis of
+        ``n`` cells, node ``i`` is node ``i mod n``, the rank boxes tile ``[0, n)`` and
+        `migrate` wraps positions into the domain.
     """
 
-    def __init__(self, dim: int, dx: float, domain_lo, domain_hi, comm=None):
+    def __init__(self, dim: int, dx: float, domain_lo, domain_hi, comm=None, periodic=()):
         super().__init__(comm.comm if isinstance(comm, Communicator) else comm)
         self.dim = int(dim)
         self.dx = float(dx)
@@ -64,30 +97,59 @@ class Domain(Communicator):
         self.domain_lo = np.asarray(domain_lo, dtype=np.float64).reshape(self.dim)
         self.domain_hi = np.asarray(domain_hi, dtype=np.float64).reshape(self.dim)
         self.n_cells = np.round((self.domain_hi - self.domain_lo) / self.dx).astype(np.int64)
+        self.periodic = np.zeros(self.dim, dtype=bool)
+        self.periodic[list(periodic)] = True
+        # Period in cells per axis, 0 where the axis is not periodic (the wrap kernel's input).
+        self.period = np.where(self.periodic, self.n_cells, 0).astype(np.int64)
+        # Image offsets in cells: every combination of -1, 0, +1 periods over the periodic
+        # axes, zero first. Supports and halos never reach past one period (a wrapped
+        # particle's support is nodes -1 .. n + 1), so these images are all there are.
+        steps = [(0, -1, 1) if p else (0,) for p in self.periodic]
+        self.shifts = np.array(list(itertools.product(*steps)), dtype=np.int64) * self.period
         self._plan: GridPlan | None = None
+        self._graph = None  # the neighbour graph communicator, built on first use
+        self.neighbours = np.empty(0, dtype=np.int64)
+        # Particles `migrate` kept because their owner is no neighbour: `agree` settles them.
+        self.pending_far = 0
+        self.moved_in_agree = 0
+        self.arrived = 0  # particles received by migrations so far (a running count)
+        # The run loop's stop request (a signal) and the agreed answer (`agree`).
+        self.stop_requested = False
+        self.stop_agreed = False
         # Until the first `decompose`, split the domain evenly (no particles: purely local).
         empty = np.empty((0, self.dim), dtype=np.int64)
         self.set_boxes(recursive_bisection(empty, self.size, self.n_cells,
-                                           lambda a: a, lambda a: a))
+                                           lambda a: a, lambda a: a, self.periodic))
 
     # -- decomposition ------------------------------------------------------------------------
-    def decompose(self, particles) -> None:
+    def decompose(self, particles, batch: int | None = None) -> None:
         """Recursive coordinate bisection of the cells weighted by the particles on all ranks,
-        then migrate every particle to its owner. Collective and deterministic."""
+        then move every particle to its owner (`migrate_all`, ``batch`` rows per round).
+        Collective and deterministic."""
+        self.wrap(particles["x"])
         cells = particle_cells(particles["x"], self.domain_lo, self.inv_dx)
         boxes = recursive_bisection(cells, self.size, self.n_cells,
-                                    self._reduce_max, self._reduce_sum)
+                                    self._reduce_max, self._reduce_sum, self.periodic)
+        del cells
         self.set_boxes(boxes)
-        self.migrate(particles)
+        self.migrate_all(particles, batch)
 
     def set_boxes(self, boxes: np.ndarray) -> None:
-        """Adopt a decomposition (e.g. the one a checkpoint recorded): (size, 2, dim) cells."""
+        """Adopt a decomposition (e.g. the one a checkpoint recorded): (size, 2, dim) cells.
+        Collective: the neighbour graph is rebuilt on its next use."""
         boxes = np.array(boxes, dtype=np.int64)
         if boxes.shape != (self.size, 2, self.dim):
             raise ValueError(f"boxes must have shape {(self.size, 2, self.dim)} for {self.size} "
                              f"rank(s) in {self.dim}D, got {boxes.shape}")
         self.boxes = boxes
         self._plan = None
+        if self._graph is not None:
+            self._graph.Free()
+        self._graph = None
+
+    def _traffic_started(self) -> None:
+        if self._graph is not None:
+            self._graph = CountingComm(self._graph, self.traffic)
 
     @property
     def owned_lo(self) -> np.ndarray:
@@ -97,44 +159,148 @@ class Domain(Communicator):
     def owned_hi(self) -> np.ndarray:
         return self.boxes[self.rank, 1]
 
+    def find_neighbours(self) -> np.ndarray:
+        """Ranks whose box, or one of its periodic images, meets mine expanded by
+        `NEIGHBOUR_REACH` cells. They hold every node my particles touch and every particle
+        that touches my nodes."""
+        return neighbour_ranks(self.boxes, self.rank, self.shifts, NEIGHBOUR_REACH)
+
+    def _neighbour_graph(self):
+        """The distributed-graph communicator of my neighbours (MPI-3 neighbour collectives),
+        built collectively the first time a step needs it after the boxes changed."""
+        if self._graph is None:
+            self.neighbours = self.find_neighbours()
+            others = np.setdiff1d(np.arange(self.size), self.neighbours)
+            # Owner lookup tries my box, then my neighbours', then everybody's.
+            self._search = np.concatenate([[self.rank], self.neighbours,
+                                           others[others != self.rank]]).astype(np.int64)
+            nbrs = [int(r) for r in self.neighbours]
+            self._graph = self.mpi.Create_dist_graph_adjacent(nbrs, nbrs, reorder=False)
+        return self._graph
+
+    def wrap(self, x: np.ndarray) -> int:
+        """Wrap positions x (n, dim) into the domain along the periodic axes, in place
+        (``x <- lo + (x - lo) mod L``); returns how many coordinates moved. Nothing to do
+        (and no pass over x) without periodic axes."""
+        if not self.periodic.any() or not len(x):
+            return 0
+        return int(wrap_periodic(x, self.domain_lo, self.inv_dx, self.dx, self.period))
+
     def owners(self, x: np.ndarray) -> np.ndarray:
-        """Owning rank of each position x (n, dim)."""
+        """Owning rank of each position x (n, dim) (of its periodic image in the domain)."""
         out = np.empty(len(x), dtype=np.int64)
-        return owner_ranks(np.ascontiguousarray(x, dtype=np.float64), self.domain_lo,
-                           self.inv_dx, self.boxes, self.rank, out)
+        x = np.array(x, dtype=np.float64)  # a copy: wrapping must not move the caller's x
+        self.wrap(x)
+        return owner_ranks(x, self.domain_lo, self.inv_dx, self.boxes, self.rank, out)
 
     def _reduce_max(self, a: np.ndarray) -> np.ndarray:
         out = np.empty_like(a)
-        self.comm.Allreduce(np.ascontiguousarray(a), out, op=MPI.MAX)
+        self.mpi.Allreduce(np.ascontiguousarray(a), out, op=MPI.MAX)
         return out
 
     def _reduce_sum(self, a: np.ndarray) -> np.ndarray:
         out = np.empty_like(a)
-        self.comm.Allreduce(np.ascontiguousarray(a), out, op=MPI.SUM)
+        self.mpi.Allreduce(np.ascontiguousarray(a), out, op=MPI.SUM)
         return out
+
+    def max_then_sum(self, maxes, sums) -> tuple[np.ndarray, np.ndarray]:
+        """Global elementwise max of ``maxes`` and sum of ``sums`` (floats; integers below
+        2**53 exactly) in one allreduce of ``len(maxes) + len(sums) + 1`` doubles."""
+        k = len(maxes)
+        vec = np.concatenate([[k], np.asarray(maxes, np.float64), np.asarray(sums, np.float64)])
+        out = np.empty_like(vec)
+        self.mpi.Allreduce(vec, out, op=max_then_sum_op())
+        return out[1:k + 1], out[k + 1:]
+
+    # -- the step's agreement -----------------------------------------------------------------
+    def agree(self, particles, speed: float, n_bad: int) -> tuple[float, int]:
+        """The one global reduction of an ordinary step (the health check before it): the
+        largest particle speed (the time step), the number of broken particles (the
+        instability guard), whether any rank has a stop request (``stop_requested``, the
+        run loop's signal; the answer is ``stop_agreed``) and whether any rank holds particles
+        that jumped past its neighbours (then they are delivered here, `migrate_all`, and
+        ``moved_in_agree`` counts the particles this rank sent and received: the caller's
+        particle order is then stale). One allreduce of 5 doubles. Returns (max speed, total
+        broken)."""
+        maxes, sums = self.max_then_sum(
+            [speed, float(self.pending_far > 0), float(self.stop_requested)], [n_bad])
+        self.stop_agreed = bool(maxes[2])
+        self.moved_in_agree = 0
+        if maxes[1]:
+            arrived_before = self.arrived
+            self.moved_in_agree = self.migrate_all(particles) + self.arrived - arrived_before
+        return float(maxes[0]), int(sums[0])
 
     # -- particles ----------------------------------------------------------------------------
     def migrate(self, particles) -> int:
-        """Send every field of every particle whose owner changed to its owner (any rank, not
-        just face neighbours); received particles are appended. Returns the number sent."""
+        """The step's migration: particles that left my box go to their owner when it is a
+        neighbour (one message per neighbour with any, the counts by one neighbour
+        all-to-all); a particle that jumped further stays here, counted in ``pending_far``,
+        until the next `agree` delivers it. Returns the number sent.
+
+        Positions are wrapped into the domain along the periodic axes first (G2P moved them
+        freely): this is the one place a step does it, so P2G, the owner lookup, frames and
+        checkpoints all see wrapped positions."""
+        self.wrap(particles["x"])
         if self.size == 1:
             return 0
-        # Room for every particle, but only the leavers' entries are written (untouched
-        # pages of a large np.empty are never resident).
+        graph = self._neighbour_graph()
         leaving = np.empty(particles.n, dtype=np.int64)
         owner = np.empty(particles.n, dtype=np.int64)
-        k = leavers(particles["x"], self.domain_lo, self.inv_dx, self.boxes, self.rank,
+        k = leavers(particles["x"], self.domain_lo, self.inv_dx, self.boxes, self._search,
                     leaving, owner)
         leaving, owner = leaving[:k], owner[:k]
-        order = leaving[np.argsort(owner, kind="stable")]
-        send_counts = np.bincount(owner, minlength=self.size).astype(np.int64)
-        recv_counts = np.empty(self.size, dtype=np.int64)
-        self.comm.Alltoall(send_counts, recv_counts)
+        near = np.isin(owner, self.neighbours)
+        self.pending_far = int(k - near.sum())
+        leaving = leaving[near]
+        slot = np.searchsorted(self.neighbours, owner[near])  # position in the graph
+        order = leaving[np.argsort(slot, kind="stable")]
+        send_counts = np.bincount(slot, minlength=len(self.neighbours)).astype(np.int64)
+        recv_counts = np.empty(len(self.neighbours), dtype=np.int64)
+        graph.Neighbor_alltoall(send_counts, recv_counts)
+        return self._move(particles, order, self.neighbours, send_counts, self.neighbours,
+                          recv_counts)
+
+    def migrate_all(self, particles, batch: int | None = None) -> int:
+        """Send every particle whose owner changed to its owner, whichever rank that is
+        (collective: one all-to-all of counts per round). ``batch`` bounds the particles a
+        rank sends per round (start-up, where most particles move: the buffers in flight stay
+        at ``batch`` rows); rounds go on until no rank has leavers left."""
+        self.wrap(particles["x"])
+        self.pending_far = 0
+        if self.size == 1:
+            return 0
+        ranks = np.arange(self.size, dtype=np.int64)
+        everybody = np.concatenate([[self.rank], ranks[ranks != self.rank]])
+        sent = 0
+        while True:
+            leaving = np.empty(particles.n, dtype=np.int64)
+            owner = np.empty(particles.n, dtype=np.int64)
+            k = leavers(particles["x"], self.domain_lo, self.inv_dx, self.boxes, everybody,
+                        leaving, owner)
+            take = k if batch is None else min(k, batch)
+            leaving, owner = leaving[:take], owner[:take]
+            order = leaving[np.argsort(owner, kind="stable")]
+            del leaving
+            send_counts = np.bincount(owner, minlength=self.size).astype(np.int64)
+            recv_counts = np.empty(self.size, dtype=np.int64)
+            self.mpi.Alltoall(send_counts, recv_counts)
+            sent += self._move(particles, order, ranks, send_counts, ranks, recv_counts)
+            if batch is None or not self.any(k - take > 0):
+                return sent
+
+    def _move(self, particles, order, dests, send_counts, sources, recv_counts) -> int:
+        """Pack rows ``order`` (grouped by destination), exchange, remove, append."""
         if not len(order) and not recv_counts.any():
             return 0
         arrays = {name: particles[name] for name in particles.field_names()}
         send = pack_rows(arrays, order, row_dtype(arrays))
-        recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_MIGRATE)
+        # Views of the old field arrays would keep them alive if `append` has to grow them.
+        del arrays
+        recv = exchange_rows(self.mpi, send, dests, send_counts, sources, recv_counts,
+                             TAG_MIGRATE)
+        self.arrived += len(recv)
+        del send
         if len(order):
             particles.remove(order)
         if len(recv):
@@ -148,34 +314,55 @@ class Domain(Communicator):
         """Read-only copies of other ranks' particles within ``r`` of my owned region (its box in
         physical coordinates, expanded by ``r``), for the fields ``names``.
 
-        Neighbours are the ranks whose expanded box meets mine; the test is symmetric, so both
-        sides agree on who talks to whom and the counts go point-to-point too."""
+        Across a periodic face a copy is the particle's image: its ``x`` (when asked for) is
+        shifted by the period, so the receiver sees it where it acts; a rank receives images of
+        its own particles too when its box is within ``r`` of itself across the face. ``r``
+        must stay below every period. The neighbour test (box gap ``<= r``, per image) is
+        symmetric, so both sides agree on who talks to whom and the counts go point-to-point
+        too. Rows arrive grouped by source rank, each source's images in `shifts` order."""
         names = list(names)
+        length = self.period * self.dx
+        if np.any(self.periodic & (r >= length)):
+            raise ValueError(f"particle halo reach {r} must be below the period "
+                             f"{length[self.periodic].min()} of every periodic axis")
         arrays = {name: particles[name] for name in names}
         lo = self.domain_lo + self.boxes[:, 0].astype(np.float64) * self.dx
         hi = self.domain_lo + self.boxes[:, 1].astype(np.float64) * self.dx
         me = self.rank
-        gap = np.maximum(lo - hi[me], lo[me] - hi).max(axis=1)
-        neighbours = np.array([q for q in np.flatnonzero(gap <= r) if q != me], dtype=np.int64)
-        counts, index = points_in_boxes(particles["x"], lo[neighbours] - r, hi[neighbours] + r)
-        send_counts = np.zeros(self.size, dtype=np.int64)
-        send_counts[neighbours] = counts
-        recv_counts = np.zeros(self.size, dtype=np.int64)
-        requests = [self.comm.Irecv(recv_counts[q:q + 1], source=int(q), tag=TAG_HALO_COUNT)
-                    for q in neighbours]
-        requests += [self.comm.Isend(send_counts[q:q + 1], dest=int(q), tag=TAG_HALO_COUNT)
-                     for q in neighbours]
+        shifts = self.shifts * self.dx  # physical image offsets
+        # (q, s): rank q sees my particles at x + shifts[s]; those lie in its expanded box.
+        pairs = [(q, s) for s in range(len(shifts))
+                 for q in np.flatnonzero(np.max(np.maximum(lo - shifts[s] - hi[me],
+                                                           lo[me] - hi + shifts[s]), axis=1) <= r)
+                 if q != me or s]
+        pairs.sort()
+        q_of = np.array([q for q, _ in pairs], dtype=np.int64)
+        offset = np.array([shifts[s] for _, s in pairs]).reshape(len(pairs), self.dim)
+        counts, index = points_in_boxes(particles["x"], lo[q_of] - offset - r,
+                                        hi[q_of] - offset + r)
+        ranks = np.unique(q_of)
+        send_counts = np.zeros(len(ranks), dtype=np.int64)
+        np.add.at(send_counts, np.searchsorted(ranks, q_of), counts)
+        recv_counts = send_counts.copy()  # my own images: what I send myself
+        others = np.flatnonzero(ranks != me)
+        requests = [self.mpi.Irecv(recv_counts[i:i + 1], source=int(ranks[i]),
+                                   tag=TAG_HALO_COUNT) for i in others]
+        requests += [self.mpi.Isend(send_counts[i:i + 1], dest=int(ranks[i]),
+                                    tag=TAG_HALO_COUNT) for i in others]
         MPI.Request.Waitall(requests)
         send = pack_rows(arrays, index, row_dtype(arrays))
-        recv = exchange_rows(self.comm, send, send_counts, recv_counts, TAG_HALO)
+        if "x" in arrays and self.periodic.any():
+            send["x"] += np.repeat(offset, counts, axis=0)
+        recv = exchange_rows(self.mpi, send, ranks, send_counts, ranks, recv_counts, TAG_HALO)
         return {name: np.ascontiguousarray(a) for name, a in unpack_rows(recv).items()}
 
     # -- load balance -------------------------------------------------------------------------
     def imbalance(self, particles) -> float:
-        """max / mean particle count over ranks (1.0 when there are no particles)."""
-        counts = np.asarray(self.allgather(int(particles.n)), dtype=np.float64)
-        mean = counts.mean()
-        return float(counts.max() / mean) if mean > 0 else 1.0
+        """max / mean particle count over ranks (1.0 when there are no particles); one
+        allreduce of 3 doubles."""
+        maxes, sums = self.max_then_sum([particles.n], [particles.n])
+        mean = sums[0] / self.size
+        return float(maxes[0] / mean) if mean > 0 else 1.0
 
     def rebalance(self, particles, threshold: float = 1.2) -> bool:
         """Recompute the bisection and migrate when ``imbalance > threshold``. Every rank takes
@@ -190,38 +377,69 @@ class Domain(Communicator):
     def grid_box(self, particles, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
         """Node box ``(lo, hi)`` this rank's GridBlock must hold: the support of its particles
         plus the owned nodes that other ranks' particles touch (empty, ``lo == hi``, when
-        neither exists). Gathers every rank's support box (2*dim ints each) and refreshes the
-        exchange plan when they changed. ``order`` is accepted for both kernels: the support
-        (cell - 1 .. cell + 2) is the same."""
+        neither exists). The support boxes (2*dim ints) go to the neighbours only (a neighbour
+        all-gather); the exchange plan is rebuilt when mine or theirs changed. ``order`` is
+        accepted for both kernels: the support (cell - 1 .. cell + 2) is the same.
+
+        My particles lie in my box (`migrate` ends every step, `agree` delivers far jumps), so
+        the support stays within `NEIGHBOUR_REACH` cells of it, where my neighbours' boxes
+        are; a support beyond that means particles are on the wrong rank (an error)."""
         support = np.zeros((2, self.dim), dtype=np.int64)
         lo, hi = np.empty(self.dim, np.int64), np.empty(self.dim, np.int64)
         if cell_bounds(particles["x"], self.domain_lo, self.inv_dx, lo, hi):
             support[0] = lo - GHOST_BELOW
             support[1] = hi + GHOST_ABOVE + 1
-        supports = np.empty((self.size, 2, self.dim), dtype=np.int64)
-        self.comm.Allgather(support, supports)
-        key = supports.tobytes()
+            own_lo, own_hi = self.boxes[self.rank]
+            if np.any(support[0] < own_lo - NEIGHBOUR_REACH) or \
+                    np.any(support[1] > own_hi + NEIGHBOUR_REACH):
+                raise RuntimeError(
+                    f"rank {self.rank}: particles outside its box (cells {lo.tolist()} .. "
+                    f"{hi.tolist()}, box {own_lo.tolist()} .. {own_hi.tolist()}): call "
+                    f"domain.migrate and domain.agree (the health check) before the step")
+        if self.size == 1:
+            key = support.tobytes()
+            theirs = np.empty((0, 2, self.dim), dtype=np.int64)
+        else:
+            theirs = np.empty((len(self._neighbour_graph_ready()), 2, self.dim), np.int64)
+            self._graph.Neighbor_allgather(support, theirs)
+            key = support.tobytes() + theirs.tobytes()
         if self._plan is None or self._plan.key != key:
-            self._plan = self._grid_plan(supports, key)
+            self._plan = self._grid_plan(support, theirs, key)
         return self._plan.block_lo.copy(), self._plan.block_hi.copy()
 
-    def _grid_plan(self, supports: np.ndarray, key: bytes) -> GridPlan:
+    def _neighbour_graph_ready(self) -> np.ndarray:
+        self._neighbour_graph()
+        return self.neighbours
+
+    def _grid_plan(self, support: np.ndarray, theirs: np.ndarray, key: bytes) -> GridPlan:
+        """Exchange regions from the support boxes: for each neighbour (and myself) ``r`` and
+        image shift ``s`` (zero only when no axis is periodic), ``support(me) & (owned(r) +
+        s)`` are my partial sums of ``r``'s nodes (``r`` adds them at ``- s``) and
+        ``(support(r) - s) & owned(me)`` my owned nodes that ``r``'s particles touch through
+        that image."""
         me = self.rank
         own_lo, own_hi = self.boxes[me]
         to_owners, from_touchers = [], []
         parts = []
-        if not is_empty(*supports[me]):
-            parts.append(supports[me])
-        for r in range(self.size):
-            if r == me:
-                continue
-            lo, hi = intersect(*supports[me], *self.boxes[r])
-            if not is_empty(lo, hi):
-                to_owners.append((r, lo, hi))
-            lo, hi = intersect(*supports[r], own_lo, own_hi)
-            if not is_empty(lo, hi):
-                from_touchers.append((r, lo, hi))
-                parts.append((lo, hi))
+        if not is_empty(*support):
+            parts.append(support)
+        ranks = [(int(r), theirs[i]) for i, r in enumerate(self.neighbours)] + [(me, support)]
+        for r, support_r in sorted(ranks, key=lambda item: item[0]):
+            sends, recvs = [], []
+            for s in self.shifts:
+                if r == me and not s.any():
+                    continue
+                lo, hi = intersect(*support, *(self.boxes[r] + s))
+                if not is_empty(lo, hi):
+                    sends.append((lo, hi))
+                lo, hi = intersect(*(support_r - s), own_lo, own_hi)
+                if not is_empty(lo, hi):
+                    recvs.append((lo, hi))
+                    parts.append((lo, hi))
+            if sends:
+                to_owners.append((r, sends))
+            if recvs:
+                from_touchers.append((r, recvs))
         if parts:
             block_lo = np.min([p[0] for p in parts], axis=0)
             block_hi = np.max([p[1] for p in parts], axis=0)
@@ -235,21 +453,29 @@ class Domain(Communicator):
         return self._plan
 
     def _exchange_regions(self, grid, names, sends, recvs, tag: int, add: bool) -> None:
+        """One message per neighbour holding all its regions; a rank's regions on itself (a
+        periodic image of its own nodes) are copied, not sent. Everything is packed before
+        anything is unpacked, so a self copy reads the values from before the exchange."""
         fields = [grid[name] for name in names]
-        requests, received = [], []
-        for r, lo, hi in recvs:
-            slices = region_slices(lo, hi, grid.origin, grid.shape)
-            buf = np.empty(region_size(fields, slices), dtype=np.float64)
-            requests.append(self.comm.Irecv(buf, source=r, tag=tag))
-            received.append((slices, buf))
-        for r, lo, hi in sends:
-            slices = region_slices(lo, hi, grid.origin, grid.shape)
-            buf = np.empty(region_size(fields, slices), dtype=np.float64)
-            pack_region(fields, slices, buf)
-            requests.append(self.comm.Isend(buf, dest=r, tag=tag))
+        requests, received, local = [], [], {}
+        for r, regions in recvs:
+            boxes = [region_slices(lo, hi, grid.origin, grid.shape) for lo, hi in regions]
+            buf = None
+            if r != self.rank:
+                buf = np.empty(regions_size(fields, boxes), dtype=np.float64)
+                requests.append(self.mpi.Irecv(buf, source=r, tag=tag))
+            received.append((r, boxes, buf))
+        for r, regions in sends:
+            boxes = [region_slices(lo, hi, grid.origin, grid.shape) for lo, hi in regions]
+            buf = np.empty(regions_size(fields, boxes), dtype=np.float64)
+            pack_regions(fields, boxes, buf)
+            if r == self.rank:
+                local[r] = buf
+            else:
+                requests.append(self.mpi.Isend(buf, dest=r, tag=tag))
         MPI.Request.Waitall(requests)
-        for slices, buf in received:  # in rank order: a deterministic summation order
-            unpack_region(fields, slices, buf, add)
+        for r, boxes, buf in received:  # in rank order: a deterministic summation order
+            unpack_regions(fields, boxes, local[r] if buf is None else buf, add)
 
     def sum_ghosts_to_owners(self, grid, *names: str) -> None:
         """After P2G: each rank sends its partial sums on nodes owned by others to the owners,

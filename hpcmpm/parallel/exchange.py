@@ -36,25 +36,35 @@ def unpack_rows(rows: np.ndarray) -> dict[str, np.ndarray]:
     return {name: rows[name] for name in rows.dtype.names}
 
 
-def exchange_rows(comm: MPI.Comm, send: np.ndarray, send_counts: np.ndarray,
-                  recv_counts: np.ndarray, tag: int) -> np.ndarray:
-    """Send records ``send`` (grouped by destination, ``send_counts[r]`` for rank ``r``) and
-    receive ``recv_counts[r]`` records from each rank; messages only where a count is nonzero.
-    Returns the received records grouped by source rank. Records travel as bytes."""
-    recv = np.empty(int(recv_counts.sum()), dtype=send.dtype)
+def exchange_rows(comm, send: np.ndarray, dests: np.ndarray, send_counts: np.ndarray,
+                  sources: np.ndarray, recv_counts: np.ndarray, tag: int) -> np.ndarray:
+    """Send records ``send`` (grouped by destination: ``send_counts[i]`` for rank
+    ``dests[i]``) and receive ``recv_counts[i]`` records from rank ``sources[i]``; messages
+    only where a count is nonzero. Returns the received records in the order of ``sources``.
+    Records travel as bytes; the ones a rank sends itself (periodic images) are copied
+    (its entries in both lists must then agree)."""
+    recv = np.empty(int(np.sum(recv_counts)), dtype=send.dtype)
     if send.dtype.itemsize == 0:
         return recv
+    me = comm.Get_rank()
+    send_start = np.concatenate([[0], np.cumsum(send_counts)]).astype(np.int64)
+    recv_start = np.concatenate([[0], np.cumsum(recv_counts)]).astype(np.int64)
+    own = {int(d): i for i, d in enumerate(dests) if d == me}
     requests = []
-    start = 0
-    for source in np.flatnonzero(recv_counts):
-        stop = start + int(recv_counts[source])
-        requests.append(comm.Irecv(recv[start:stop].view(np.uint8), source=int(source), tag=tag))
-        start = stop
-    start = 0
-    for dest in np.flatnonzero(send_counts):
-        stop = start + int(send_counts[dest])
-        requests.append(comm.Isend(send[start:stop].view(np.uint8), dest=int(dest), tag=tag))
-        start = stop
+    for i in np.flatnonzero(recv_counts):
+        start, stop = int(recv_start[i]), int(recv_start[i + 1])
+        if sources[i] == me:
+            j = own[me]
+            recv[start:stop] = send[send_start[j]:send_start[j + 1]]
+            continue
+        requests.append(comm.Irecv(recv[start:stop].view(np.uint8), source=int(sources[i]),
+                                   tag=tag))
+    for i in np.flatnonzero(send_counts):
+        if dests[i] == me:
+            continue
+        start, stop = int(send_start[i]), int(send_start[i + 1])
+        requests.append(comm.Isend(send[start:stop].view(np.uint8), dest=int(dests[i]),
+                                   tag=tag))
     MPI.Request.Waitall(requests)
     return recv
 
@@ -69,29 +79,36 @@ def region_slices(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, shape) -> 
     return tuple(slice(int(l - o), int(h - o)) for l, h, o in zip(lo, hi, origin))
 
 
-def pack_region(fields: list[np.ndarray], slices: tuple, buf: np.ndarray) -> None:
-    """Copy the region ``slices`` of each field (scalar or vector) into ``buf``, one after the
-    other."""
+def pack_regions(fields: list[np.ndarray], boxes: list[tuple], buf: np.ndarray) -> None:
+    """Copy each region (a tuple of slices) of each field (scalar or vector) into ``buf``,
+    region by region, field by field within a region."""
     start = 0
-    for f in fields:
-        part = f[slices]
-        buf[start:start + part.size].reshape(part.shape)[...] = part
-        start += part.size
+    for slices in boxes:
+        for f in fields:
+            part = f[slices]
+            buf[start:start + part.size].reshape(part.shape)[...] = part
+            start += part.size
 
 
-def region_size(fields: list[np.ndarray], slices: tuple) -> int:
-    n_nodes = int(np.prod([s.stop - s.start for s in slices]))
-    return sum(n_nodes * int(np.prod(f.shape[len(slices):], dtype=np.int64)) for f in fields)
+def regions_size(fields: list[np.ndarray], boxes: list[tuple]) -> int:
+    total = 0
+    for slices in boxes:
+        n_nodes = int(np.prod([s.stop - s.start for s in slices]))
+        total += sum(n_nodes * int(np.prod(f.shape[len(slices):], dtype=np.int64))
+                     for f in fields)
+    return total
 
 
-def unpack_region(fields: list[np.ndarray], slices: tuple, buf: np.ndarray, add: bool) -> None:
-    """Add (``add``) or copy ``buf`` into the region ``slices`` of each field."""
+def unpack_regions(fields: list[np.ndarray], boxes: list[tuple], buf: np.ndarray,
+                   add: bool) -> None:
+    """Add (``add``) or copy ``buf`` into the regions, in the order `pack_regions` wrote."""
     start = 0
-    for f in fields:
-        part = f[slices]
-        values = buf[start:start + part.size].reshape(part.shape)
-        if add:
-            part += values
-        else:
-            part[...] = values
-        start += part.size
+    for slices in boxes:
+        for f in fields:
+            part = f[slices]
+            values = buf[start:start + part.size].reshape(part.shape)
+            if add:
+                part += values
+            else:
+                part[...] = values
+            start += part.size

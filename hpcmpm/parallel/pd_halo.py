@@ -29,6 +29,16 @@ from .exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
 TAG_PD_HALO, TAG_PD_SEGMENTS, TAG_PD_BONDS = 111, 112, 113
 
 
+def _exchange(comm, send, send_counts, recv_counts, tag):
+    """`exchange.exchange_rows` with counts per rank (rows grouped by rank), whichever of its
+    two signatures this tree has: (send_counts, recv_counts) per rank, or the per-neighbour
+    lists of the periodic-axes version (dests, send_counts, sources, recv_counts)."""
+    if exchange_rows.__code__.co_argcount == 5:
+        return exchange_rows(comm, send, send_counts, recv_counts, tag)
+    ranks = np.arange(len(send_counts))
+    return exchange_rows(comm, send, ranks, send_counts, ranks, recv_counts, tag)
+
+
 class PDHalo:
     """The PD particle halo of one rank.
 
@@ -103,8 +113,7 @@ class PDHalo:
         for name in self.shifted:
             if name in arrays and len(send):
                 send[name] += self.send_shift
-        recv = exchange_rows(self.domain.comm, send, self.send_counts, self.recv_counts,
-                             TAG_PD_HALO)
+        recv = _exchange(self.domain.comm, send, self.send_counts, self.recv_counts, TAG_PD_HALO)
         got = unpack_rows(recv)
         if out is None:
             return {k: np.ascontiguousarray(v) for k, v in got.items()}
@@ -133,13 +142,13 @@ def send_segments(domain, bonds, row_ids, rows, dest):
     domain.comm.Alltoall(seg_send, seg_recv)
     domain.comm.Alltoall(bond_send, bond_recv)
     seg = {"id": np.asarray(row_ids)[rows], "count": counts}
-    got_seg = unpack_rows(exchange_rows(domain.comm, pack_rows(seg, np.arange(len(rows)),
-                                                               row_dtype(seg)),
-                                        seg_send, seg_recv, TAG_PD_SEGMENTS))
+    got_seg = unpack_rows(_exchange(domain.comm, pack_rows(seg, np.arange(len(rows)),
+                                                           row_dtype(seg)),
+                                    seg_send, seg_recv, TAG_PD_SEGMENTS))
     arrays = {k.replace(".", "__"): v for k, v in arrays.items()}
-    got = unpack_rows(exchange_rows(domain.comm, pack_rows(arrays, np.arange(int(counts.sum())),
-                                                           row_dtype(arrays)),
-                                    bond_send, bond_recv, TAG_PD_BONDS))
+    got = unpack_rows(_exchange(domain.comm, pack_rows(arrays, np.arange(int(counts.sum())),
+                                                       row_dtype(arrays)),
+                                bond_send, bond_recv, TAG_PD_BONDS))
     return (np.ascontiguousarray(got_seg["id"]), np.ascontiguousarray(got_seg["count"]),
             {k.replace("__", "."): np.ascontiguousarray(v) for k, v in got.items()})
 
@@ -214,8 +223,8 @@ def route_half_bonds(domain, arrays: dict[str, np.ndarray], owner_ids: np.ndarra
     recv_counts = np.empty(domain.size, np.int64)
     domain.comm.Alltoall(send_counts, recv_counts)
     packed = {k.replace(".", "__"): np.ascontiguousarray(v) for k, v in arrays.items()}
-    got = unpack_rows(exchange_rows(domain.comm, pack_rows(packed, rows, row_dtype(packed)),
-                                    send_counts, recv_counts, TAG_PD_BONDS))
+    got = unpack_rows(_exchange(domain.comm, pack_rows(packed, rows, row_dtype(packed)),
+                                send_counts, recv_counts, TAG_PD_BONDS))
     return {k.replace("__", "."): np.ascontiguousarray(v) for k, v in got.items()}
 
 

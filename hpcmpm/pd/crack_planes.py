@@ -23,7 +23,8 @@ Each step, before the model's own pass (which then only applies ``max_bond_stret
 
 Two-time integration (``integration = "grid"``): particles with a broken bond (damage > 0)
 move by their own PD force, v <- v^n + dt (f/m + g), x <- x^n + dt v, instead of the grid
-velocity; their force is not scattered to the grid. The others move with the grid as usual.
+velocity, the domain walls acting on them per particle (contact.py); their force is not
+scattered to the grid. The others move with the grid as usual.
 This is what lets the two faces of a crack separate within one grid (003 §5.4).
 """
 
@@ -34,6 +35,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .contact import ParticleWalls
 from .extension import IntegralMPMExtension, PDBodyExtension
 from .geometry import bond_vectors, norm3
 
@@ -278,34 +280,12 @@ class CrackPlaneIntegralMPM(CrackPlaneForces, IntegralMPMExtension):
         at, x_n, v_n, f = self._own
         p = sim.particles
         v = v_n + dt * (f / p["mass"][at, None] + sim.gravity[: sim.dim])
-        project_on_walls(sim, x_n, v)
+        if not hasattr(self, "walls"):
+            self.walls = ParticleWalls(sim.scene)
+        self.walls.apply(x_n, v, dt)          # off the grid: walls per particle (contact.py)
         p["v"][at] = v
         p["x"][at] = x_n + dt * v
         self._own = None
-
-
-def project_on_walls(sim, x, v) -> None:
-    """The domain walls for particles off the grid: within one cell of a face (where the
-    grid's wall nodes would act on them) the face's condition projects the velocity
-    (boundaries/contact.project), as the walls project the nodes."""
-    from ..boundaries.contact import project
-    from ..boundaries.walls import Walls
-
-    walls = [b for b in sim.boundaries if isinstance(b, Walls)]
-    if not walls:
-        return
-    dim = sim.dim
-    lo = sim.domain_lo[:dim]
-    hi = lo + walls[0].n_cells[:dim] * sim.dx
-    for face, (condition, friction) in enumerate(walls[0].faces):
-        axis, upper = divmod(face, 2)
-        near = (x[:, axis] > hi[axis] - sim.dx) if upper else (x[:, axis] < lo[axis] + sim.dx)
-        sign = -1.0 if upper else 1.0
-        normal = [sign if a == axis else 0.0 for a in range(3)]
-        for i in np.flatnonzero(near):
-            v3 = (v[i, 0], v[i, 1], v[i, 2] if dim == 3 else 0.0)
-            r = project(*v3, *normal, condition, friction)
-            v[i] = r[:dim]
 
 
 def make_crack_plane_extension(sim, material):

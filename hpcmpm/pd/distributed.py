@@ -46,7 +46,8 @@ class DistributedPDBody:
         model.s0 = min(model.s0, float(max_bond_stretch))
         radius = delta + 0.5 * spacing if partial_volumes else delta
         self.skin = 0.5 * spacing if skin is None else float(skin)
-        self.halo = PDHalo(domain, radius * (1.0 + max_bond_stretch), self.skin)
+        # s_reach: the critical stretch, or max_bond_stretch when that is smaller.
+        self.halo = PDHalo(domain, radius * (1.0 + model.s0), self.skin)
         self.body_force = np.zeros(domain.dim) if body_force is None else \
             np.asarray(body_force, np.float64)
         self.persistent = tuple(model.persistent_fields)

@@ -22,13 +22,18 @@ set, so particles that become PD later get their x0 when they do).
 from __future__ import annotations
 
 import logging
+import math
+import os
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
+from .bonds import Bonds
 from .boundary import impose_prescribed_velocity
-from .families import find_families
+from .contact import ParticleWalls
+from .families import find_families, half_bonds_per_particle
 from .geometry import damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 
@@ -48,8 +53,10 @@ class PDExtension:
         prm = material.params
         self.radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
             else material.delta
-        self.halo = PDHalo(sim.domain, self.radius * (1.0 + prm["max_bond_stretch"]),
-                           prm["skin"] * material.spacing)
+        # s_reach = the critical stretch, or max_bond_stretch when smaller (the model's s0).
+        self.reach = self.radius * (1.0 + self.model.s0)
+        self.skin = prm["skin"] * material.spacing
+        self.halo: PDHalo | None = None       # made at the first step (the domain exists)
         self.bonds = None
         self.bond_ids = np.empty(0, np.int64)
         self.pts: PDPoints | None = None
@@ -71,7 +78,6 @@ class PDExtension:
         return out
 
     def _rebuild(self, start, stop) -> None:
-        p = self.sim.particles
         static = self._static(start, stop)
         halo = self.halo.build(static["x"], static)
         cat = lambda k: np.concatenate([static[k], halo[k]])  # noqa: E731
@@ -80,10 +86,29 @@ class PDExtension:
         if self.bonds is not None:
             self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
         self.model.resize(len(self.pts.x))
-        del p
+
+    def _check_memory(self, n: int) -> None:
+        """Refuse a horizon whose bonds would not fit: an estimate before allocating, from
+        an interior family's count (collective; the same SceneError on every rank)."""
+        per_particle = half_bonds_per_particle(
+            self.sim.dim, self.material.delta / self.material.spacing,
+            self.material.params["partial_volumes"])
+        need = n * per_particle * (Bonds.empty().resident_bytes_per_bond() + 4)
+        try:
+            memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (ValueError, OSError, AttributeError):
+            memory = math.inf
+        worst = self.sim.domain.max(float(need))
+        if worst > 0.5 * memory:
+            raise SceneError(
+                f"material {self.material.spec.name!r} (peridynamic): horizon: "
+                f"{per_particle} half-bonds per particle need about {worst / 2**30:.1f} GiB "
+                f"on one rank, more than half of its {memory / 2**30:.1f} GiB: lower the "
+                "horizon or use more ranks")
 
     def _initialize(self, start, stop) -> None:
         """Families in the reference configuration (collective)."""
+        self._check_memory(stop - start)
         p = self.sim.particles
         x0 = p["x0"][start:stop]
         unset = np.isnan(x0[:, 0])
@@ -115,6 +140,8 @@ class PDExtension:
         """Bond rows and halo in step with the particles; positions refreshed. Collective."""
         start, stop = self._rows()
         domain = self.sim.domain
+        if self.halo is None:
+            self.halo = PDHalo(domain, self.reach, self.skin)
         if self.bonds is None:
             self._initialize(start, stop)
             return start, stop
@@ -132,6 +159,7 @@ class PDExtension:
                 self.redistributions += 1
             self.bond_ids = ids.copy()
         x = self.sim.particles["x"][start:stop]
+        moved = self._follow_periodic_wrap(start, stop) or moved
         # Rebuild after a reorder too: the halo plan's send lists name rows.
         if moved or self.halo.stale(x):
             self._rebuild(start, stop)
@@ -140,6 +168,25 @@ class PDExtension:
             self.pts.x[:n] = x
             self.halo.refresh({"x": x}, {"x": self.pts.x[n:]})
         return start, stop
+
+    def _follow_periodic_wrap(self, start, stop) -> bool:
+        """Along periodic axes the engine wraps x into the domain; the reference position
+        follows by whole periods (x - x0 kept within half a period), so bond vectors X between
+        a particle and its partners' images stay those of the reference configuration.
+        Returns whether any rank shifted one (a halo rebuild; collective)."""
+        domain = self.sim.domain
+        periodic = np.asarray(getattr(domain, "periodic", np.zeros(self.sim.dim, bool)))
+        if not periodic.any():
+            return False
+        p = self.sim.particles
+        length = np.where(periodic, domain.n_cells * domain.dx, 0.0)
+        axes = np.flatnonzero(periodic)
+        x, x0 = p["x"][start:stop], p["x0"][start:stop]
+        turns = np.round((x[:, axes] - x0[:, axes]) / length[axes])
+        changed = bool(np.any(turns != 0))
+        if changed:
+            x0[:, axes] += turns * length[axes]
+        return domain.any(changed)
 
     def compute_forces(self, start, stop) -> np.ndarray:
         """Failure, state (with the state halo) and bond forces of the rows [start, stop)."""
@@ -190,10 +237,7 @@ class CheckpointedBonds:
     def write_checkpoint(self, out_dir, step: int, keep: int) -> None:
         from ..io.checkpoint import write_checkpoint
 
-        b = self.bonds
-        if b is None:
-            from .bonds import Bonds
-            b = Bonds.empty(0)
+        b = self.bonds if self.bonds is not None else Bonds.empty(0)
         arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
                   "weight": b.weight, "status": b.status,
                   **{f"state.{k}": v for k, v in b.state.items()}}
@@ -207,7 +251,6 @@ class CheckpointedBonds:
         builds the halo instead of new families."""
         from ..io.checkpoint import read_checkpoint
         from ..parallel.pd_halo import route_half_bonds
-        from .bonds import Bonds
 
         path = Path(particle_checkpoint)
         rows, meta = read_checkpoint(bonds_folder(path.parent, self.material.spec.name)
@@ -233,7 +276,12 @@ class CheckpointedBonds:
 
 
 class PDBodyExtension(CheckpointedBonds, PDExtension):
-    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles."""
+    """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles; the
+    domain walls act per particle (pd/contact.py; analytic colliders do not, yet)."""
+
+    def __init__(self, sim, material):
+        super().__init__(sim, material)
+        self.walls = ParticleWalls(sim.scene)
 
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
@@ -242,9 +290,11 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
             f = self.compute_forces(start, stop)
             p = sim.particles
             v = p["v"][start:stop]
+            x = p["x"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
-            impose_prescribed_velocity(sim, start, stop, v)     # pd/boundary.py
-            p["x"][start:stop] += dt * v
+            self.walls.apply(x, v, dt)
+            impose_prescribed_velocity(sim, start, stop, v)     # pd/boundary.py (wins)
+            x += dt * v
             self.write_damage(start, stop)
 
 

@@ -19,7 +19,8 @@ the horizon, estimated linearly along the bond,
 The issue's family rule (|X| <= delta) would drop the partners with delta < |X| < delta + dx/2
 that this rule weights: with them the PMB lattice factors at delta = 3.015 dx are the
 issue's 1.059 (3D) and 1.018 (2D); truncated at delta (LAMMPS PERI's rule, which only scales
-partners inside the cutoff) they are 0.890 and 0.862 (see tests/verification/test_pd_lattice.py).
+partners inside the cutoff) they are 0.890 and 0.862 (the same lattice sums as
+tests/verification/test_pd_uniform.py, with beta = 0 beyond delta).
 
 Influence functions omega(|X|): constant 1, inverse delta/|X|, conical max(1 - |X|/delta, 0),
 gaussian exp(-(|X|/delta)^2).

@@ -97,7 +97,7 @@ def test_rank_without_particles_has_an_empty_block():
     domain = Domain(dim, 0.1, np.zeros(dim), np.ones(dim))
     values = cloud(dim, 50, seed=5, lo=0.0, hi=0.3)  # all in the first rank's half
     p = particle_set(dim, values, strided_share(values, domain))
-    domain.migrate(p)  # the initial even split: rank 1 (x >= 0.5) gets nothing
+    domain.migrate_all(p)  # the initial even split: rank 1 (x >= 0.5) gets nothing
     lo, hi = domain.grid_box(p, 2)
     owners = set(domain.owners(values["x"]).tolist())
     assert np.all(hi > lo) == (domain.rank in owners)

@@ -81,6 +81,11 @@ def test_parallel_smoke(tmp_path):
     assert {"hpcmpm_1", "hpcmpm_2"} <= set(doc["runs"])
     assert doc["runs"]["hpcmpm_2"]["particles_per_rank"][0] > 0
     assert 0 < doc["efficiency"]["hpcmpm"]["efficiency_median"]
+    # The co-run baseline's halves are exactly the 2-rank run's shares.
+    halves = doc["runs"]["hpcmpm_corun"]["particles_per_rank"]
+    assert halves == doc["runs"]["hpcmpm_2"]["particles_per_rank"]
+    assert sum(halves) == doc["particles"]
+    assert 0 < doc["efficiency"]["hpcmpm_vs_corun"]["efficiency_median"]
     # The barrier-per-phase mode: every rank takes the same phases, so it must not hang, and
     # its phases are recorded for both rank counts.
     run_script("bench_parallel.py", "--smoke", "--reps", "2", "--steps", "2", "--rounds", "1",
@@ -122,3 +127,26 @@ def test_bench_command_dispatches(tmp_path):
         "ceiling", "--smoke", "--scene", "a", "--reps", "1", "--steps", "2",
         "--out", str(tmp_path)]))
     assert code == 0 and (tmp_path / "ceiling.json").exists()
+
+
+def test_scaling_model_smoke(tmp_path):
+    """The weak-scaling model's counting part on a few ranks, and the model with its plot."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("scaling_model",
+                                                  SCRIPTS / "scaling_model.py")
+    scaling_model = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(scaling_model)  # in this process: no second interpreter start
+    scaling_model.main(["geometry", "--max-ranks", "4", "--out", str(tmp_path)])
+    geo = json.loads((tmp_path / "scaling_geometry.json").read_text())
+    # Two ranks of a fully periodic lattice are each other's only neighbour; four are all
+    # neighbours; every rank has ghost nodes beyond its box.
+    by_p = {(r["P"], r["particles_per_rank"]): r for r in geo["rows"]}
+    assert by_p[(2, 100000)]["neighbours_max"] == 1 and by_p[(4, 100000)]["neighbours_max"] == 3
+    assert all(r["ghost_nodes_max"] > 0 and r["imbalance"] >= 1.0 for r in geo["rows"])
+    plot = tmp_path / "model.png"
+    scaling_model.main(["model", "--out", str(tmp_path), "--plot", str(plot)])
+    model = json.loads((tmp_path / "scaling_model.json").read_text())
+    assert plot.stat().st_size > 0
+    for curve in model["curves"].values():
+        assert curve["efficiency"][0] == 1.0 and 0 < min(curve["efficiency"]) <= 1.0

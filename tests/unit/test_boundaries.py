@@ -104,6 +104,14 @@ def test_walls_skip_massless_nodes_and_handle_blocks_away_from_walls():
     assert np.all(far == 1.0)
 
 
+def test_walls_do_not_act_on_the_faces_of_periodic_axes():
+    v = np.ones((12, 12, 2))
+    Walls([face("sticky")] * 4, [10, 10], periodic=(0,)).apply(v, np.array([-1, -1]), 0.1,
+                                                               np.zeros(2), 0.0, 0.01)
+    assert np.all(v[:, [0, 1, 11]] == 0.0)  # y faces: nodes -1, 0 and 10 along y
+    assert np.all(v[:, 2:11] == 1.0)  # x faces (nodes -1, 0, 10 along x) untouched
+
+
 # -- colliders ---------------------------------------------------------------------------------
 def collider_spec(shape, params, condition="sticky", velocity=(), omega=None, friction=0.0,
                   start=0.0, end=np.inf):

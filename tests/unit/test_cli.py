@@ -79,7 +79,8 @@ def test_set_on_the_command_line_and_its_problems():
     proc = hpcmpm("validate", "inputs/disks_2d.toml", "--set", "simulation.dx=0.04",
                   "--set", "bodies.0.radius=0.1")
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip() == "inputs/disks_2d.toml: ok (394 particles, 1 materials, dim 2)"
+    assert proc.stdout.splitlines()[0] == \
+        "inputs/disks_2d.toml: ok (394 particles, 1 materials, dim 2)"
     proc = hpcmpm("validate", "inputs/disks_2d.toml", "--set", "simulation.cfl=abc")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip() == ("hpcmpm: error: inputs/disks_2d.toml: simulation.cfl: "

@@ -1,5 +1,6 @@
 """particles.xdmf: valid XDMF 3 whose every DataItem names an existing dataset of the stated
-dimensions, one grid per frame on disk, relative paths."""
+dimensions, one grid per frame on disk, relative paths, a Polyvertex connectivity 0..n-1 (without
+it ParaView builds no cells: tests/unit/test_io_paraview.py)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,10 @@ def check_xdmf(path: Path) -> list[tuple[float, int]]:
         assert grid.get("GridType") == "Uniform"
         n = int(grid.find("Topology").get("NumberOfElements"))
         assert grid.find("Topology").get("TopologyType") == "Polyvertex"
+        connectivity = grid.find("Topology/DataItem")
+        file, dataset = connectivity.text.strip().split(":")
+        with h5py.File(path.parent / file, "r") as h5:
+            np.testing.assert_array_equal(h5[dataset][...], np.arange(n))
         for item in grid.iter("DataItem"):
             file, dataset = item.text.strip().split(":")
             assert not Path(file).is_absolute()

@@ -67,3 +67,26 @@ def test_script_starts_fresh_then_resumes_from_newest_checkpoint(tmp_path, sched
 def test_bad_walltime_is_a_clear_error():
     with pytest.raises(JobScriptError, match="HH:MM:SS"):
         render("slurm", "x.toml", 1, 1, "90 minutes")
+
+
+@pytest.mark.parametrize("has_mpi,mode", [(True, "mpio"), (False, "serial")])
+def test_script_writes_in_mpio_mode_when_h5py_has_mpi(tmp_path, has_mpi, mode):
+    """The job runs with HPCMPM_IO_MODE=mpio exactly when the environment's h5py was built
+    with MPI (a stub `python` answers the check; the stub launcher records the mode)."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    log = tmp_path / "calls.log"
+    (bin_dir / "python").write_text(f"#!/usr/bin/env bash\nexit {0 if has_mpi else 1}\n")
+    (bin_dir / "srun").write_text(
+        f'#!/usr/bin/env bash\necho "mode=$HPCMPM_IO_MODE" >> {log}\nexit 0\n')
+    for stub in bin_dir.iterdir():
+        stub.chmod(0o755)
+    script = tmp_path / "job.sh"
+    script.write_text(render("slurm", "scene.toml", 1, 2, "00:10:00",
+                             out_dir=str(tmp_path / "out"), activate="true"))
+    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", SLURM_JOB_ID="42")
+    proc = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True,
+                          timeout=60, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert log.read_text().split() == [f"mode={mode}"]
+    assert ("serial mode" in proc.stderr) == (not has_mpi)

@@ -23,6 +23,14 @@ E, NU, RHO = 10.0, 0.3, 2.0
 
 # Snow with a clamp too wide to act on the F used in the elastic tests ([0.1, 11]).
 WIDE_SNOW = {"theta_c": 0.9, "theta_s": 10.0, "xi": 10.0}
+# The b_E models without plastic flow (Wi = inf, yield far away) are hyperelastic in F through
+# b = F F^T, J = det F: psi = mu/2 (tr b - d) - mu ln J + lam/2 (J - 1)^2 (000 eq. 5.8), so the
+# contract tests of the F models apply to them with that state (`fields_for`).
+ELASTIC_LIMIT = {
+    "oldroyd_b": {"relaxation_time": math.inf},
+    "herschel_bulkley": {"yield_strain": 1e6, "flow_consistency": 1.0},
+    "von_mises": {"yield_strain": 1e6},
+}
 STOMAKHIN_SNOW = {"theta_c": 2.5e-2, "theta_s": 7.5e-3, "xi": 10.0}
 
 
@@ -41,6 +49,7 @@ def params_for(name: str, **extra) -> dict:
         p = {"E": E, "nu": NU}
     if name == "snow":
         p.update(WIDE_SNOW)
+    p.update(ELASTIC_LIMIT.get(name, {}))
     p.update(extra)
     return p
 
@@ -50,10 +59,12 @@ def material(name: str, dim: int, **extra):
 
 
 def fields_for(F: np.ndarray, Jp: float = 1.0) -> dict[str, np.ndarray]:
-    """Particle fields for a batch of F (n, d, d); snow's F_P is (Jp)^(1/d) I."""
+    """Particle fields for a batch of F (n, d, d); snow's F_P is (Jp)^(1/d) I; the b_E models'
+    state b = F F^T, J = det F, with a zero velocity gradient L."""
     n, d = F.shape[0], F.shape[1]
     return {
         "F": np.ascontiguousarray(F, dtype=np.float64),
+        "b": F @ F.transpose(0, 2, 1), "J": np.linalg.det(F), "L": np.zeros((n, d, d)),
         "tau": np.full((n, d, d), np.nan),
         "vol0": np.ones(n), "mass": np.ones(n),
         "x": np.zeros((n, d)), "v": np.zeros((n, d)),
@@ -387,6 +398,9 @@ def test_validate_params_messages():
     # Every schema entry is a full Param (the scene validator relies on the format).
     for cls in MATERIALS.values():
         for key, spec in cls.parameters.items():
+            if spec.choices:  # a string key: its default is one of the choices
+                assert spec.default in spec.choices
+                continue
             assert spec.low < spec.high
             numeric = spec.choices is None and spec.schema is None and spec.check is None
             assert (spec.default is None) if spec.required else \
@@ -394,7 +408,80 @@ def test_validate_params_messages():
 
 
 def test_make_material_errors_name_the_choices():
-    with pytest.raises(SceneError, match="valid: fixed_corotated, linear_elastic"):
+    with pytest.raises(SceneError, match="valid: fixed_corotated, herschel_bulkley, linear_elastic"):
         make_material(Spec("jelly", {}), 3)
     with pytest.raises(SceneError, match="nu: must be > -1, got -2"):
         make_material(Spec("neo_hookean", {"E": 1.0, "nu": -2.0}), 2)
+
+
+def test_viscoelastic_bad_input():
+    """Issue 9's bad-input list for the b_E models: one line per problem, naming the key."""
+    ob = {"mu": 1.0, "lambda": 10.0, "relaxation_time": 0.5}
+    assert validate_params("oldroyd_b", ob) == []
+    assert validate_params("oldroyd_b", {**ob, "relaxation_time": math.inf,
+                                         "plasticity": "fe_bdf2"}) == []
+    assert validate_params("oldroyd_b", {**ob, "plasticity": "spd"}) == \
+        ["plasticity: unknown value 'spd' (did you mean 'ob_spd'? valid: ob_spd, ob_explicit, "
+         "fe, fe_bdf2)"]
+    assert validate_params("oldroyd_b", {**ob, "viscosity": -1.0, "relaxation_time": -2.0}) == \
+        ["viscosity: must be >= 0, got -1", "relaxation_time: must be > 0, got -2"]
+    assert validate_params("oldroyd_b", {"mu": 1.0, "relaxation_time": 1.0}) == \
+        ["lambda: missing (given with mu)"]
+    assert validate_params("oldroyd_b", {**ob, "E": 1.0, "nu": 0.3}) == \
+        ["E: give mu and lambda, or E and nu, not both"]
+    assert validate_params("oldroyd_b", {"relaxation_time": 1.0}) == \
+        ["mu: missing (give mu and lambda, or E and nu)"]
+    assert validate_params("oldroyd_b", {"mu": 0.0, "lambda": 100.0, "viscosity": 0.1,
+                                         "relaxation_time": 1.0}) == []  # a Newtonian fluid
+    hb = {"E": 10.0, "nu": 0.3, "yield_strain": 0.1, "flow_consistency": 1.0}
+    assert validate_params("herschel_bulkley", hb) == []
+    assert validate_params("herschel_bulkley", {**hb, "yield_strain": -0.1, "flow_index": 0}) \
+        == ["yield_strain: must be >= 0, got -0.1", "flow_index: must be > 0, got 0"]
+    assert validate_params("von_mises", {"E": 10.0, "nu": 0.3, "yield_strain": -1}) == \
+        ["yield_strain: must be >= 0, got -1"]
+    with pytest.raises(SceneError, match=r"material 'm' \(oldroyd_b\): plasticity: unknown value"):
+        make_material(Spec("oldroyd_b", {**ob, "plasticity": "bdf2"}), 2)
+
+
+def test_ob_explicit_time_step_problem():
+    """ob_explicit loses definiteness for dt > Wi (000 §5.7): the engine asks the material
+    with the scene's largest time step and reports the line as materials[i].plasticity."""
+    mat = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1e-3,
+                                           "plasticity": "ob_explicit"}), 2)
+    assert mat.time_step_problem(1e-3) is None
+    problem = mat.time_step_problem(2e-3)
+    assert problem.startswith("plasticity: ") and "0.002" in problem and "0.001" in problem
+    spd = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1e-3}), 2)
+    assert spd.time_step_problem(1.0) is None and spd.integrator_problem("semi_implicit") is None
+    for plasticity in ("fe", "fe_bdf2"):  # explicit relaxation: measured limits 1.25-4 Wi
+        fe = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1e-3,
+                                              "plasticity": plasticity}), 3)
+        assert fe.time_step_problem(1e-3) is None
+        assert fe.time_step_problem(2e-3).startswith(f"plasticity: '{plasticity}' needs dt")
+    assert fe.integrator_problem("explicit") is None
+    assert "explicit integrator only" in fe.integrator_problem("semi_implicit")
+
+
+def test_viscoelastic_configure_checks_the_scene():
+    """configure(scene) turns time_step_problem / integrator_problem into one SceneError line
+    "{file}: materials[i].plasticity: ..."; the largest time step is the fixed dt, else
+    max_dt and (explicit) the material's own CFL and viscous bounds."""
+    from types import SimpleNamespace
+    mat = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1e-3,
+                                           "viscosity": 0.5, "plasticity": "ob_explicit"}), 2)
+    scene = SimpleNamespace(path="s.toml", dt=None, max_dt=None, cfl=0.4, dx=0.01,
+                            integrator="explicit", materials=[mat.spec],
+                            material_index=lambda name: 0)
+    # Explicit: dt <= min(cfl dx / c, rho dx^2 / (2 d mu_N)) = min(8.9e-4, 5e-5) < Wi: fine.
+    assert mat.dt_limit(0.01) == pytest.approx(RHO * 1e-4 / (2 * 2 * 0.5))
+    mat.configure(scene)
+    scene.integrator = "semi_implicit"  # advection-bounded dt: unbounded without max_dt
+    with pytest.raises(SceneError, match=r"s\.toml: materials\[0\]\.plasticity: 'ob_explicit' "
+                                         r"needs dt <= relaxation_time"):
+        mat.configure(scene)
+    scene.max_dt = 1e-3
+    mat.configure(scene)
+    bdf2 = make_material(Spec("oldroyd_b", {"mu": 1.0, "lambda": 10.0, "relaxation_time": 1.0,
+                                            "plasticity": "fe_bdf2"}), 2)
+    with pytest.raises(SceneError, match="explicit integrator only"):
+        bdf2.configure(scene)

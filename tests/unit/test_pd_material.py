@@ -68,3 +68,31 @@ def test_pd_time_step_rule_and_off_grid_speed():
             if 0 < r < delta + h / 2:
                 k += h * h * c * min(1.0, (delta + h / 2 - r) / h) / r
     assert glass.dt_limit(0.02) == pytest.approx(0.8 * math.sqrt(2 * rho / k), rel=1e-12)
+
+
+def test_bonds_that_would_not_fit_are_refused_before_allocation(monkeypatch):
+    import os
+
+    from hpcmpm.runner import initial_particles
+    sim = sim_with("fracture_energy = 10.0", "fracture_energy = 10.0")
+    initial_particles(sim)
+    # A machine of 1 MiB: 1600 particles x 36 half-bonds x 25 B do not fit in half of it.
+    monkeypatch.setattr(os, "sysconf", lambda name: 1024 if name == "SC_PAGE_SIZE" else 1024)
+    sim.ensure_grouped()
+    with pytest.raises(SceneError, match="36 half-bonds per particle need about"):
+        sim.extensions[0].prepare()
+
+
+@pytest.mark.parametrize("condition", ["slip", "sticky"])
+def test_off_grid_pd_body_stops_at_a_wall(condition):
+    from hpcmpm.runner import simulate
+    text = PLATE.replace('velocity = [-20.0, 0.0]', 'velocity = [0.0, -300.0]') \
+        .replace('velocity = [20.0, 0.0]', 'velocity = [0.0, -300.0]') \
+        .replace('lower = [0.3, 0.3]', 'lower = [0.3, 0.02]') \
+        .replace('lower = [0.5, 0.3]', 'lower = [0.5, 0.02]') \
+        .replace('default = "slip"', f'default = "{condition}"')
+    scene = parse_scene(text, path="plate.toml")
+    sim = simulate(scene, end_time=2e-4)        # 0.06 m of travel: the plate (at 0.02) lands
+    y = sim.particles["x"][:, 1]
+    # The lowest layer (at 0.025 initially) reached the floor and stopped on it.
+    assert y.min() >= 0.0 and y.min() < 0.01

@@ -75,9 +75,9 @@ CASES = {
                          "valid: pic, flip, apic, mls)"),
     "unknown_material_type": (GOOD.replace('type = "neo_hookean"', 'type = "neo_hooke"'),
                               "materials[0].type: unknown value 'neo_hooke' (did you mean "
-                              "'neo_hookean'? valid: fixed_corotated, linear_elastic, "
-                              "neo_hookean, peridynamic, snow, stable_neo_hookean, "
-                              "weakly_compressible)"),
+                              "'neo_hookean'? valid: fixed_corotated, herschel_bulkley, "
+                              "linear_elastic, neo_hookean, oldroyd_b, peridynamic, snow, "
+                              "stable_neo_hookean, von_mises, weakly_compressible)"),
     "unknown_shape": (GOOD.replace('shape = "sphere"', 'shape = "spher"', 1),
                       "bodies[0].shape: unknown value 'spher' (did you mean 'sphere'? valid: "
                       "box, sphere, cylinder, mesh)"),
@@ -115,6 +115,16 @@ CASES = {
                          "output.checkpoint_every: must be >= 1, got 0"),
     "no_bodies": (GOOD[:GOOD.index("[[bodies]]")],
                   "bodies: missing: at least one [[bodies]] table is required"),
+    "periodic_unknown_axis": (GOOD.replace("cfl = 0.4", 'cfl = 0.4\nperiodic = ["z"]'),
+                              "simulation.periodic: unknown axis 'z' (valid: x, y)"),
+    "periodic_repeated_axis": (GOOD.replace("cfl = 0.4", 'cfl = 0.4\nperiodic = ["y", "y"]'),
+                               "simulation.periodic: axis 'y' named more than once"),
+    "periodic_not_a_list": (GOOD.replace("cfl = 0.4", 'cfl = 0.4\nperiodic = "x"'),
+                            "simulation.periodic: must be an array of axis names"),
+    "periodic_axis_with_a_wall": (GOOD.replace("cfl = 0.4", 'cfl = 0.4\nperiodic = ["x"]')
+                                  + 'x_upper = { condition = "sticky" }\n',
+                                  "walls.x_upper: axis 'x' is periodic (simulation.periodic): "
+                                  "its faces are not walls; remove walls.x_upper or the axis"),
     "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"),
                     "TOML syntax error: Invalid value (at line 7, column 7)"),
 }
@@ -211,6 +221,13 @@ def test_dataclasses_and_defaults():
     assert sponge.prescribed[1] == PrescribedSpec(
         "right_clamp", {"lower": (0.75, 0.4, 0.4), "upper": (0.8, 0.6, 0.6)}, (0.0, 0.0, 0.0),
         (3.14159, 0.0, 0.0), (0.775, 0.5, 0.5))
+
+
+def test_periodic_axes_are_sorted_indices_and_default_to_none():
+    assert parse_scene(GOOD).periodic == ()
+    scene = parse_scene(GOOD_3D.replace("[simulation]", '[simulation]\nperiodic = ["y", "x"]'))
+    assert scene.periodic == (0, 1)
+    assert parse_scene(scene.text) == scene  # the resolved text keeps the key
 
 
 def test_wall_defaults_and_per_face_overrides():

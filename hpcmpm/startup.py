@@ -1,0 +1,239 @@
+"""Start-up at scale: count, check the memory, sample each rank's share, decompose.
+
+Nothing here holds more than a rank's own particles (ARCHITECTURE.md "Start-up"): the bodies
+are counted in chunks shared by the ranks (`hpcmpm.geometry.count_scene`), the memory a rank
+will need is estimated from those counts and refused in one line when it cannot fit, then each
+rank samples the ids ``[N r / P, N (r+1) / P)`` (whole lattice layers, so a slab of the last
+axis) and the bisection moves them to their owners. ``hpcmpm run --dry-run`` stops there and
+reports the counts and the measured peak memory of every rank.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import resource
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SceneError
+
+log = logging.getLogger(__name__)
+
+# Resident size of a rank before it holds any particle: the interpreter, numpy, numba with
+# the scene's kernels loaded from the cache, mpi4py, h5py (measured with `hpcmpm run
+# --dry-run` on a 1000-particle scene: 215-235 MiB; rounded up).
+BASE_BYTES = 256 * 2**20
+# Transient bytes per particle on top of its fields at the peak of start-up and of a step:
+# the migration after the bisection holds packed copies of the leavers and the arrivals
+# (one row each, about the field bytes), the sort its keys and order (16 B); the particle
+# arrays keep up to 50 % spare capacity. Calibrated against the measured dry-run peak
+# (docs/parallel.md "Start-up"): 1.5 x fields + 16 B bounds it from above.
+SPARE_FACTOR = 1.5
+SCRATCH_BYTES = 16
+# Sampling more particles at once than this only makes the temporaries bigger.
+SAMPLE_BATCH = 1 << 18
+# Particles a rank sends per round of the start-up migration (about 15 MiB of packed rows
+# in 3D): the constant of the start-up memory instead of a second copy of the share.
+MIGRATE_BATCH = 1 << 16
+
+
+@dataclass
+class MemoryEstimate:
+    """What one rank needs at the peak of start-up and stepping."""
+
+    particles: int            # in the whole scene
+    ranks: int
+    exact: bool               # the count is exact (counted) or from the shapes
+    bytes_per_particle: int   # fields, spare capacity and scratch
+    per_rank: int             # bytes on the busiest rank (within the rebalance threshold)
+
+    def describe(self) -> str:
+        about = "" if self.exact else "about "
+        return (f"{about}{self.particles:,} particles, {format_bytes(self.per_rank)} per rank "
+                f"on {self.ranks} rank(s) ({self.bytes_per_particle} B/particle + "
+                f"{format_bytes(BASE_BYTES)} per process)")
+
+
+def format_bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if abs(n) < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024.0
+    return f"{n:.1f} TiB"
+
+
+def particle_bytes(scene) -> int:
+    """Bytes per particle at the peak: the fields the scene declares (materials, transfer,
+    prescribed sets), with the spare capacity and the scratch of migration and sorting."""
+    from .simulation import Simulation
+
+    fields = Simulation(scene, None).particles.nbytes_per_particle()
+    return int(SPARE_FACTOR * fields + SCRATCH_BYTES)
+
+
+def estimate_memory(scene, count: int, ranks: int, exact: bool) -> MemoryEstimate:
+    """Bytes per rank for ``count`` particles on ``ranks`` ranks. The busiest rank may hold
+    up to ``parallel.rebalance_threshold`` times the mean before a rebalance; the grid block
+    (one node per cell of the rank's particles plus its ghost layer, at most 10 fields) is
+    small beside the particles at 2 or more particles per cell per axis and is included."""
+    per_particle = particle_bytes(scene)
+    share = count / ranks * (scene.parallel.rebalance_threshold if ranks > 1 else 1.0)
+    cells = share / scene.particles_per_cell ** scene.dim
+    grid = 2.0 * cells * 10 * 8 * scene.dim  # support plus ghosts: at most twice the cells
+    per_rank = int(share * per_particle + grid + BASE_BYTES)
+    return MemoryEstimate(int(count), ranks, exact, per_particle, per_rank)
+
+
+def available_memory() -> int | None:
+    """Bytes this node can still give: ``MemAvailable`` of /proc/meminfo, capped by the
+    cgroup limit of a batch job (cgroup v2 ``memory.max`` minus ``memory.current``).
+    None where neither can be read (then nothing is refused)."""
+    found = []
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) * 1024)
+    except OSError:
+        pass
+    try:
+        with open("/sys/fs/cgroup/memory.max") as f:
+            limit = f.read().strip()
+        with open("/sys/fs/cgroup/memory.current") as f:
+            current = int(f.read().strip())
+        if limit != "max":
+            found.append(int(limit) - current)
+    except (OSError, ValueError):
+        pass
+    return min(found) if found else None
+
+
+def memory_problem(scene, estimate: MemoryEstimate, ranks_on_node: int,
+                   available: int | None) -> str | None:
+    """The one-line refusal when ``ranks_on_node`` ranks of this estimate do not fit in
+    ``available`` bytes, else None."""
+    if available is None or estimate.per_rank * ranks_on_node <= available:
+        return None
+    per_rank_here = available / ranks_on_node
+    # Ranks needed so that each one's share fits in what one rank may have here.
+    share_bytes = estimate.per_rank - BASE_BYTES
+    room = per_rank_here - BASE_BYTES
+    needed = int(np.ceil(estimate.ranks * share_bytes / room)) if room > 0 else None
+    hint = (f"run on at least {needed} ranks with {ranks_on_node} per node like this one, "
+            if needed else "") + "or lower simulation.particles_per_cell or refine less"
+    return (f"{scene.path}: simulation.particles_per_cell: the scene needs "
+            f"{estimate.describe()}, but this node has {format_bytes(available)} available "
+            f"for {ranks_on_node} rank(s) ({format_bytes(per_rank_here)} each): {hint}")
+
+
+def check_memory(scene, domain, count: int, exact: bool) -> MemoryEstimate:
+    """Estimate and refuse together: every rank raises the same `SceneError` when any node
+    cannot hold its ranks' shares (one max-reduction)."""
+    estimate = estimate_memory(scene, count, domain.size, exact)
+    available = available_memory()
+    local = domain.ranks_on_node()
+    ratio = estimate.per_rank * local / available if available else 0.0
+    worst = domain.max(ratio)
+    if worst > 1.0:
+        # The node with the least room reports; everybody raises its line.
+        line = memory_problem(scene, estimate, local, available) if ratio == worst else None
+        lines = [x for x in domain.allgather(line) if x]
+        raise SceneError(lines[0])
+    return estimate
+
+
+def initial_particles(sim) -> MemoryEstimate:
+    """Count, check, sample this rank's share, mark prescribed particles, decompose."""
+    from .geometry import count_scene, estimate_count, sample_share, share_bounds
+
+    scene, domain, p = sim.scene, sim.domain, sim.particles
+    # The shapes alone first: a scene far too big is refused before any point is tested
+    # (not from a mesh's bounding lattice, which can exceed the mesh many times).
+    guess, exact = estimate_count(scene)
+    if not any(body.shape == "mesh" for body in scene.bodies):
+        check_memory(scene, domain, guess, exact)
+    counts = count_scene(scene, domain.rank, domain.size, domain.sum)
+    estimate = check_memory(scene, domain, counts.total, True)
+    start, stop = share_bounds(counts.total, domain.rank, domain.size)
+    # Room for the share and for what the bisection may give beyond it (a slab of cells),
+    # so that the arrivals do not make the arrays grow by half.
+    share = stop - start
+    p.reserve(p.n + share + (share // 16 + MIGRATE_BATCH if domain.size > 1 else 0))
+    for a in range(start, stop, SAMPLE_BATCH):
+        values = sample_share(scene, counts, a, min(a + SAMPLE_BATCH, stop))
+        p.append({k: v for k, v in values.items() if k in p})
+        del values
+    if scene.prescribed:
+        from .boundaries import mark_prescribed_particles
+
+        mark_prescribed_particles(scene, p)
+    # Most particles change rank here (a slab of lattice layers is not a bisection box):
+    # moved in rounds, so the buffers in flight stay at MIGRATE_BATCH rows.
+    domain.decompose(p, batch=MIGRATE_BATCH)
+    return estimate
+
+
+def peak_rss_bytes() -> int:
+    """Peak resident size of this process so far (Linux reports ru_maxrss in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def dry_run(scene, comm) -> int:
+    """`hpcmpm run --dry-run`: sample, decompose, report counts and memory per rank, exit."""
+    from .runner import make_domain
+    from .simulation import Simulation
+
+    domain = make_domain(scene, comm)
+    domain.install_abort_hook()
+    sim = Simulation(scene, domain)
+    estimate = initial_particles(sim)
+    counts = np.asarray(domain.allgather(int(sim.particles.n)), dtype=np.int64)
+    rss = np.asarray(domain.allgather(peak_rss_bytes()), dtype=np.int64)
+    if domain.rank == 0:
+        print(f"{scene.path}: dry run on {domain.size} rank(s): {int(counts.sum()):,} "
+              f"particles, per rank min {counts.min():,} / max {counts.max():,} "
+              f"(imbalance {counts.max() / max(counts.mean(), 1):.3f})")
+        print(f"memory estimate: {estimate.describe()}")
+        print(f"peak RSS per rank (start-up): max {format_bytes(rss.max())}, "
+              f"min {format_bytes(rss.min())}, mean {format_bytes(rss.mean())}; "
+              f"per rank [MiB]: {' '.join(str(int(r / 2**20)) for r in rss)}")
+        if os.environ.get("HPCMPM_DRY_RUN_JSON"):
+            import json
+
+            with open(os.environ["HPCMPM_DRY_RUN_JSON"], "w") as f:
+                json.dump({"ranks": domain.size, "particles": int(counts.sum()),
+                           "counts": counts.tolist(), "peak_rss": rss.tolist(),
+                           "estimate_per_rank": estimate.per_rank,
+                           "bytes_per_particle": estimate.bytes_per_particle}, f)
+    return 0
+
+
+# Counting tests every lattice point of a non-box body; `hpcmpm validate` counts exactly up
+# to this many (a few seconds on one core) and estimates from the shapes beyond.
+VALIDATE_COUNT_LIMIT = 50_000_000
+
+
+def validate_report(scene) -> str:
+    """The line `hpcmpm validate` prints: particle count and the memory estimate on one rank
+    against this machine's available memory (with the rank count that would fit)."""
+    from .geometry import body_lattice, count_scene, estimate_count
+
+    lattice_points = sum(body_lattice(b, scene).size for b in scene.bodies
+                         if b.shape != "box")
+    if lattice_points <= VALIDATE_COUNT_LIMIT:
+        count, exact = count_scene(scene).total, True
+    else:
+        count, exact = estimate_count(scene)
+    estimate = estimate_memory(scene, count, 1, exact)
+    available = available_memory()
+    head = (f"{scene.path}: ok ({'' if exact else 'about '}{count} particles, "
+            f"{len(scene.materials)} materials, dim {scene.dim})")
+    memory = f"{scene.path}: memory estimate: {estimate.describe()}"
+    if available is None:
+        return f"{head}\n{memory}"
+    problem = memory_problem(scene, estimate, 1, available)
+    if problem:
+        return f"{head}\n{problem}"
+    return f"{head}\n{memory}; {format_bytes(available)} available here"

@@ -1,0 +1,44 @@
+"""``mpiexec -n 2 hpcmpm render`` deals the frames to the ranks and gives the same pictures as
+one rank: the PNGs are pixel for pixel equal (one colour scale reduced over the ranks), and
+rank 0's movie holds every frame."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from hpcmpm.cli import main
+from hpcmpm.viz.movie import movie_frame_count
+
+BIN = Path(sys.executable).parent
+ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
+
+
+def pixels(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def test_two_ranks_render_what_one_rank_renders(tmp_path):
+    run = tmp_path / "jelly"
+    # A coarse jelly cube (343 particles), frames at t = 0, 0.04, 0.08, 0.12: every rank
+    # gets two frames and the speed range differs between them.
+    assert main(["run", "inputs/jelly_cube_3d.toml", "--out", str(run), "--quiet",
+                 "--end-time", "0.12", "--set", "simulation.dx=0.1"]) == 0
+    args = ["--size", "200x150", "--movie", "gif", "--quiet"]
+    assert main(["render", str(run), "--out", str(tmp_path / "one"), *args]) == 0
+    proc = subprocess.run([str(BIN / "mpiexec"), "-n", "2", str(BIN / "hpcmpm"), "render",
+                           str(run), "--out", str(tmp_path / "two"), *args],
+                          capture_output=True, text=True, timeout=240, env=ENV)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "2 rank(s)" in proc.stdout and "movie: " in proc.stdout
+    one = sorted((tmp_path / "one").glob("render_*.png"))
+    two = sorted((tmp_path / "two").glob("render_*.png"))
+    assert [p.name for p in one] == [p.name for p in two] == \
+        [f"render_{i:06d}.png" for i in range(4)]
+    for a, b in zip(one, two):
+        assert np.array_equal(pixels(a), pixels(b)), a.name
+    assert movie_frame_count(tmp_path / "two" / "render.gif") == 4

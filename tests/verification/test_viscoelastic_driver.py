@@ -1,0 +1,218 @@
+"""Homogeneous material-point verification of the b_E models (issue 9, "Homogeneous driver"):
+Oldroyd-B against the classic closed forms, the steady Herschel-Bulkley flow curve and the von
+Mises shear plateau, one material point under a prescribed velocity gradient
+(`hpcmpm.materials.driver`).
+
+Units: mu = Wi = 1 (stress and time units), lambda = 10; s = t / Wi, W = (rate) Wi. The closed
+forms are those of the classic Oldroyd-B conformation A (upper-convected derivative of A =
+(I - A) / Wi, A(0) = I) with the volume-preserving rescale b_E = c A, c = (J^2/det A)^(1/d)
+(000 eq. 5.5), and sigma = mu/J (b_E - I) + lam (J - 1) I + 2 mu_N sym L (eq. 5.9-5.11):
+
+    start-up shear L = W e_x e_y^T:  A_xy = W (1 - e^-s), A_xx = 1 + 2 W^2 [1 - (1 + s) e^-s],
+                                     other diagonal 1, J = 1
+    relaxation L = 0:                A - I = (A0 - I) e^-s
+    extension L = diag(l_k):         A_kk = a_k + (1 - a_k) e^-(1 - 2 l_k Wi) s,
+                                     a_k = 1/(1 - 2 l_k Wi), J = exp(t tr L)
+
+The error of a run is max over its steps (t > 0) and stress components of |sigma - exact|,
+relative to max |exact|. Issue 9: at dt/Wi = 0.01 the error is <= 1 % for W in {0.5, 1},
+and its slope in log-log over dt/Wi = 0.04 ... 0.005 is 1 +- 0.1 (the schemes are first
+order), 2 +- 0.2 for fe_bdf2 (BDF2). The extension flow's volume ratio J = prod(1 + dt l_k)^n
+(000 eq. 5.12, the MPM F update) is itself first order, so there fe_bdf2's *stress* is first
+order too; its conformation (the stored b = A, independent of J) is checked for order 2 in
+every flow instead.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from hpcmpm.materials import make_material
+from hpcmpm.materials.driver import drive
+
+MU, LAM, WI, MU_N = 1.0, 10.0, 1.0, 0.1
+RATIOS = (0.04, 0.02, 0.01, 0.005)  # dt / Wi
+PLASTICITIES = ("ob_spd", "ob_explicit", "fe", "fe_bdf2")
+WEISSENBERGS = (0.5, 1.0)
+# Extension rates l_k = (W / Wi) * EXTENSION[:d]: a compressible flow (tr L != 0) exercising
+# J, c and the lam (J - 1) term; l_k Wi < 1/2 keeps A bounded (coil-stretch limit).
+EXTENSION = (0.25, -0.125, 0.0625)
+
+
+@dataclass
+class Spec:
+    type: str
+    params: dict
+    density: float = 1.0
+    name: str = "m"
+
+
+def oldroyd_b(dim: int, plasticity: str, viscosity: float = MU_N):
+    return make_material(Spec("oldroyd_b", {"mu": MU, "lambda": LAM, "relaxation_time": WI,
+                                            "viscosity": viscosity, "plasticity": plasticity}),
+                         dim)
+
+
+def stress_from_conformation(A: np.ndarray, J: np.ndarray, dim: int) -> np.ndarray:
+    """sigma_E of 000 eq. 5.9 with b_E = c A; A (n, d, d), J (n,)."""
+    c = (J**2 / np.linalg.det(A)) ** (1.0 / dim)
+    return MU / J[:, None, None] * (c[:, None, None] * A - np.eye(dim)) + \
+        (LAM * (J - 1.0))[:, None, None] * np.eye(dim)
+
+
+def flow(name: str, dim: int, W: float):
+    """(L (d, d), initial conformation A0 (d, d), end time, exact(t) -> (A, J, sigma))."""
+    eye = np.eye(dim)
+    if name == "startup_shear":
+        L = np.zeros((dim, dim))
+        L[0, 1] = W / WI
+
+        def exact(t):
+            s = t / WI
+            A = np.tile(eye, (len(t), 1, 1))
+            A[:, 0, 1] = A[:, 1, 0] = W * (1.0 - np.exp(-s))
+            A[:, 0, 0] = 1.0 + 2.0 * W**2 * (1.0 - (1.0 + s) * np.exp(-s))
+            J = np.ones_like(t)
+            sigma = stress_from_conformation(A, J, dim) + MU_N * (L + L.T)
+            return A, J, sigma
+        return L, eye, 3.0 * WI, exact
+    if name == "relaxation":
+        # From the steady-shear conformation at this W.
+        A0 = eye.copy()
+        A0[0, 1] = A0[1, 0] = W
+        A0[0, 0] = 1.0 + 2.0 * W**2
+
+        def exact(t):
+            A = eye + (A0 - eye) * np.exp(-t / WI)[:, None, None]
+            J = np.ones_like(t)
+            return A, J, stress_from_conformation(A, J, dim)
+        return np.zeros((dim, dim)), A0, 2.0 * WI, exact
+    l = (W / WI) * np.array(EXTENSION[:dim])
+
+    def exact(t):
+        a = 1.0 / (1.0 - 2.0 * l * WI)
+        diag = a + (1.0 - a) * np.exp(-(1.0 - 2.0 * l * WI)[None, :] * (t / WI)[:, None])
+        A = diag[:, :, None] * eye
+        J = np.exp(t * l.sum())
+        return A, J, stress_from_conformation(A, J, dim) + MU_N * 2.0 * np.diag(l)
+    return np.diag(l), eye, 2.0 * WI, exact
+
+
+def run(name: str, plasticity: str, dim: int, W: float, ratio: float):
+    """(stress error, conformation error) of one run (module docstring)."""
+    L, A0, end, exact = flow(name, dim, W)
+    mat = oldroyd_b(dim, plasticity)
+    state = {"b": A0}
+    if plasticity in ("fe", "fe_bdf2"):
+        state["Fe"] = np.linalg.cholesky(A0)  # any F_E with F_E F_E^T = A0
+    dt = ratio * WI
+    res = drive(mat, lambda t: L, dt, int(round(end / dt)), state=state, record=("b",))
+    t = res.time[1:]  # at t = 0 the stored L is zero: the start-up's viscous jump is not there
+    A, J, sigma = exact(t)
+    stress_error = np.abs(res.sigma()[1:, 0] - sigma).max() / np.abs(sigma).max()
+    conformation_error = np.abs(res.history["b"][1:, 0] - A).max() / np.abs(A).max()
+    return stress_error, conformation_error
+
+
+def slope(errors) -> float:
+    return float(np.polyfit(np.log(RATIOS), np.log(errors), 1)[0])
+
+
+@pytest.mark.parametrize("dim", (2, 3))
+@pytest.mark.parametrize("plasticity", PLASTICITIES)
+@pytest.mark.parametrize("name", ("startup_shear", "relaxation", "extension"))
+def test_oldroyd_b_closed_forms(name, plasticity, dim):
+    for W in WEISSENBERGS:
+        errors = np.array([run(name, plasticity, dim, W, r) for r in RATIOS])
+        stress, conformation = errors[:, 0], errors[:, 1]
+        # Issue 9's bar: 1 % at dt/Wi = 0.01 (measured 0.07 %-0.33 %, see the report).
+        assert stress[RATIOS.index(0.01)] <= 0.01, (name, plasticity, dim, W, stress)
+        second_order = plasticity == "fe_bdf2"
+        # The schemes' orders, 1 (2 for BDF2), with the issue's margin: the four ratios sit in
+        # the asymptotic range (measured slopes within 0.02 of 1 and 0.06 of 2).
+        stress_order = 2.0 if second_order and name != "extension" else 1.0
+        assert abs(slope(stress) - stress_order) <= 0.1 * stress_order, \
+            (name, plasticity, dim, W, stress)
+        conformation_order = 2.0 if second_order else 1.0
+        assert abs(slope(conformation) - conformation_order) <= 0.1 * conformation_order, \
+            (name, plasticity, dim, W, conformation)
+
+
+def test_start_up_shear_normal_stress_and_viscosity():
+    """The shear stress carries mu_N gdot and N1 = mu c (A_xx - 1) in 2D (J = 1), separately
+    from the combined error above: the components the issue names."""
+    W, dt = 1.0, 0.005
+    L, _, end, exact = flow("startup_shear", 2, W)
+    res = drive(oldroyd_b(2, "ob_spd"), lambda t: L, dt, int(round(end / dt)))
+    sigma = res.sigma()[-1, 0]
+    s = end / WI
+    Axy, Axx = W * (1 - math.exp(-s)), 1 + 2 * W**2 * (1 - (1 + s) * math.exp(-s))
+    c = (Axx - Axy**2) ** -0.5
+    # First-order error ~0.13 dt/Wi relative (measured), so 0.2 % here.
+    assert sigma[0, 1] == pytest.approx(MU * c * Axy + MU_N * W / WI, rel=2e-3)
+    assert sigma[0, 0] - sigma[1, 1] == pytest.approx(MU * c * (Axx - 1), rel=2e-3)
+
+
+@pytest.mark.parametrize("dim", (2, 3))
+@pytest.mark.parametrize("h", (0.5, 1.0, 2.0))
+@pytest.mark.parametrize("rate", (0.1, 1.0))
+def test_herschel_bulkley_steady_flow_curve(rate, h, dim):
+    """Steady simple shear: tau_xy = tau_y + K gdot^h, tau_y = mu sigma_Y / sqrt 2,
+    K = mu eta 2^-((h+1)/2) (issue 9; small strain, sigma_Y = eta = 0.01)."""
+    mat = make_material(Spec("herschel_bulkley", {
+        "mu": MU, "lambda": LAM, "yield_strain": 0.01, "flow_consistency": 0.01,
+        "flow_index": h}), dim)
+    L = np.zeros((dim, dim))
+    L[0, 1] = rate
+    # dt rate = 1e-4: the flow rate is evaluated at t^n (explicit), and h = 2 at rate 0.1
+    # oscillates at dt rate = 1e-3; the elastic strain ~1e-2 is loaded in ~1e2 steps and the
+    # flow relaxes within ~1e3, so 5000 steps reach the steady state.
+    dt = 1e-4 / rate
+    res = drive(mat, lambda t: L, dt, 5000)
+    tau = res.sigma()[:, 0, 0, 1]  # J = 1
+    expected = mat.flow_curve(rate)
+    assert abs(tau[-1] - tau[-1000]) <= 1e-9 * expected  # steady
+    # 0.5 % (issue 9). The closed form neglects O(strain^2) ~ 1e-4 terms; measured 0.003 %
+    # to 0.02 %.
+    assert tau[-1] == pytest.approx(expected, rel=5e-3)
+
+
+@pytest.mark.parametrize("dim", (2, 3))
+def test_von_mises_shear_plateau(dim):
+    """Simple shear well past yield: tau_xy -> mu sigma_Y / sqrt 2 (the radial return keeps
+    |dev b_bar| = sigma_Y)."""
+    sigma_y = 0.01
+    mat = make_material(Spec("von_mises", {"mu": MU, "lambda": LAM, "yield_strain": sigma_y}),
+                        dim)
+    L = np.zeros((dim, dim))
+    L[0, 1] = 1.0
+    res = drive(mat, lambda t: L, 1e-4, 2000)  # shear strain 0.2, 30x the yield strain
+    tau = res.sigma()[:, 0, 0, 1]
+    # 0.5 % (issue 9); the plateau differs from the small-strain value by O(sigma_Y^2) ~ 1e-4
+    # (measured 3e-5).
+    assert tau[-1] == pytest.approx(mat.shear_yield_stress(), rel=5e-3)
+    assert tau[-1] == pytest.approx(tau[-200], rel=1e-6)  # a plateau, not a transient
+
+
+@pytest.mark.parametrize("plasticity, limit", [("fe", 2.0), ("fe_bdf2", 4.0)])
+def test_relaxation_stability_limit(plasticity, limit):
+    """fe and fe_bdf2 relax explicitly, so they are only conditionally stable (the thesis
+    suspects fe_bdf2, §6.1.4). Linearising f' = (f^-T - f)/(2 Wi) at f = I: fe gives
+    e' = (1 - r) e, stable for r = dt/Wi < 2; fe_bdf2 gives (3 + r) e'' = (4 - 2r) e' + (r - 1) e,
+    whose root crosses -1 at r = 4. Relaxing from the W = 1 steady-shear conformation for 3000
+    steps: 2 % below the limit b reaches I to round-off, 2 % above it the period-2 mode has
+    grown into a large oscillation that never settles (nonlinear run = linear theory). ob_spd
+    has no limit (test_b_stays_spd_at_large_steps)."""
+    def deviation(ratio):
+        """max |b - I| over the last 100 steps."""
+        L, A0, _, _ = flow("relaxation", 2, 1.0)
+        res = drive(oldroyd_b(2, plasticity, viscosity=0.0), lambda t: L, ratio * WI, 3000,
+                    state={"b": A0, "Fe": np.linalg.cholesky(A0)}, record=("b",))
+        return np.abs(res.history["b"][-100:, 0] - np.eye(2)).max()
+    initial = 2.0  # |A0 - I| max = 2 W^2
+    assert deviation(0.98 * limit) < 1e-12 * initial
+    assert deviation(1.02 * limit) > 5.0 * initial
