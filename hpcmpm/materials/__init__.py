@@ -14,10 +14,12 @@ from ..errors import SceneError
 from .base import ElasticMaterial, Material, Param, check_params, lame
 from .fixed_corotated import FixedCorotated
 from .herschel_bulkley import HerschelBulkley
+from .j2 import J2Plasticity
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
 from .oldroyd_b import OldroydB
 from .peridynamic import Peridynamic
+from .shock import ShockModel
 from .snow import Snow
 from .stable_neo_hookean import StableNeoHookean
 from .von_mises import VonMises
@@ -26,7 +28,8 @@ from .weakly_compressible import WeaklyCompressible
 MATERIALS: dict[str, type[Material]] = {
     cls.name: cls
     for cls in (LinearElastic, FixedCorotated, NeoHookean, StableNeoHookean, Snow,
-                WeaklyCompressible, OldroydB, HerschelBulkley, VonMises, Peridynamic)
+                WeaklyCompressible, OldroydB, HerschelBulkley, VonMises, ShockModel,
+                J2Plasticity, Peridynamic)
 }
 
 
@@ -58,4 +61,4 @@ def make_material(spec, dim: int) -> Material:
 __all__ = ["MATERIALS", "ElasticMaterial", "Material", "Param", "check_params", "lame",
            "make_material", "validate_params", "FixedCorotated", "LinearElastic", "NeoHookean",
            "StableNeoHookean", "Snow", "WeaklyCompressible", "OldroydB", "HerschelBulkley",
-           "VonMises", "Peridynamic"]
+           "VonMises", "ShockModel", "J2Plasticity", "Peridynamic"]

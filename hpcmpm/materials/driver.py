@@ -16,10 +16,12 @@ updates (tests/verification/test_viscoelastic_driver.py, scripts/).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Callable
 
 import numpy as np
 
+from ..errors import InstabilityError
 from ..state import SCALAR, TENSOR, FieldSpec
 
 
@@ -98,3 +100,33 @@ def drive(material, velocity_gradient: Callable[[float], np.ndarray], dt: float,
         for name in record:
             history[name][n + 1] = fields[name]
     return DriverResult(np.arange(steps + 1) * dt, tau, J, fields, history)
+
+
+class MaterialPoint:
+    """`initial_fields` and `step` kept together, for tests that drive point by point and
+    change the state between steps (the impact models: tests/unit/test_impact_materials.py).
+
+    ``dx`` reaches the material through `configure` as the grid spacing of a scene (the
+    artificial viscosity's length). `step` raises InstabilityError with the material's
+    failure messages, as the engine's health check does."""
+
+    def __init__(self, material, count: int = 1, dx: float = 1.0, state: dict | None = None):
+        material.configure(SimpleNamespace(dx=dx))
+        self.material = material
+        self.fields = initial_fields(material, count, state)
+        self.time = 0.0
+        self.steps = 0
+
+    def step(self, L: np.ndarray, dt: float) -> None:
+        """One step under the velocity gradient L ((d, d) for all points or (count, d, d))."""
+        step(self.material, self.fields, L, dt)
+        self.time += dt
+        self.steps += 1
+        if self.material.failures:
+            messages, self.material.failures = self.material.failures, []
+            raise InstabilityError(f"step {self.steps}, t = {self.time:g}: "
+                                   + "; ".join(messages))
+
+    def cauchy(self) -> np.ndarray:
+        """sigma = tau / J (count, d, d) of the last step."""
+        return self.fields["tau"] / volume_ratio(self.fields)[:, None, None]

@@ -12,13 +12,15 @@ import pytest
 from hpcmpm.errors import SceneError
 from hpcmpm.materials import MATERIALS, lame, make_material, validate_params
 
-# Models with a continuum stress of F. The peridynamic material has none (its forces are
-# bond forces, tested in tests/unit/test_pd_*.py and tests/verification/test_pd_*.py).
-CONTINUUM = sorted(set(MATERIALS) - {"peridynamic"})
 from hpcmpm.materials.decompositions import polar, svd
 from hpcmpm.state import TENSOR, FieldSpec, ParticleSet
 
 DIMS = (2, 3)
+# The models these contract tests cover; the impact models (shock, j2) are hypoelastic or
+# split (EOS pressure, internal energy E), with no psi(F) to check: test_impact_materials.py
+# and test_eos.py test them. The peridynamic material has no continuum stress (its forces
+# are bond forces: tests/unit/test_pd_*.py, tests/verification/test_pd_*.py).
+ELASTIC = sorted(set(MATERIALS) - {"shock", "j2", "peridynamic"})
 E, NU, RHO = 10.0, 0.3, 2.0
 
 # Snow with a clamp too wide to act on the F used in the elastic tests ([0.1, 11]).
@@ -105,7 +107,7 @@ def random_F(rng, d: int, lo: float = 0.6, hi: float = 1.6) -> np.ndarray:
 
 # -- rest state ------------------------------------------------------------------------------
 @pytest.mark.parametrize("dim", DIMS)
-@pytest.mark.parametrize("name", CONTINUUM)
+@pytest.mark.parametrize("name", ELASTIC)
 def test_rest_state_is_stress_and_energy_free(name, dim):
     mat = material(name, dim, **({"theta_c": 0.025, "theta_s": 0.0075} if name == "snow" else {}))
     F = np.tile(np.eye(dim), (3, 1, 1))
@@ -117,10 +119,10 @@ def test_rest_state_is_stress_and_energy_free(name, dim):
 
 # -- stress is the derivative of the energy --------------------------------------------------
 @pytest.mark.parametrize("dim", DIMS)
-@pytest.mark.parametrize("name", CONTINUUM)
+@pytest.mark.parametrize("name", ELASTIC)
 def test_stress_is_energy_gradient_taylor_remainder(name, dim):
     """|psi(F + h dF) - psi(F) - h P:dF| = O(h^2) with P = tau F^-T."""
-    rng = np.random.default_rng([CONTINUUM.index(name), dim])
+    rng = np.random.default_rng([ELASTIC.index(name), dim])
     mat = material(name, dim)
     # Snow: a hardened state (Jp = 0.8) so the check covers mu(Jp), lam(Jp) as well.
     Jp = 0.8 if name == "snow" else 1.0
@@ -141,7 +143,7 @@ def test_stress_is_energy_gradient_taylor_remainder(name, dim):
 
 
 @pytest.mark.parametrize("dim", DIMS)
-@pytest.mark.parametrize("name", CONTINUUM)
+@pytest.mark.parametrize("name", ELASTIC)
 def test_small_strain_limit_is_hookes_law(name, dim):
     """Every model linearises to tau = 2 mu eps + lam tr(eps) I with (mu, lam) from (E, nu);
     for stable Neo-Hookean this checks the Lamé reparameterisation."""
@@ -163,7 +165,7 @@ def test_small_strain_limit_is_hookes_law(name, dim):
 
 # -- invariance ------------------------------------------------------------------------------
 @pytest.mark.parametrize("dim", DIMS)
-@pytest.mark.parametrize("name", sorted(set(CONTINUUM) - {"linear_elastic"}))
+@pytest.mark.parametrize("name", sorted(set(ELASTIC) - {"linear_elastic"}))
 def test_energy_is_rotation_invariant(name, dim):
     # linear_elastic is excluded on purpose: small-strain elasticity is not frame indifferent
     # (a rigid rotation of 90 degrees stores energy), which is why the large-strain models exist.
@@ -181,7 +183,7 @@ def test_energy_is_rotation_invariant(name, dim):
 
 
 @pytest.mark.parametrize("dim", DIMS)
-@pytest.mark.parametrize("name", sorted(set(CONTINUUM) - {"linear_elastic"}))
+@pytest.mark.parametrize("name", sorted(set(ELASTIC) - {"linear_elastic"}))
 def test_kirchhoff_stress_is_symmetric(name, dim):
     # Isotropic hyperelasticity gives a symmetric tau = P F^T (balance of angular momentum);
     # linear elasticity gives a symmetric P instead, so its tau is not.
@@ -341,7 +343,7 @@ def test_snow_softening(dim):
 
 # -- the rest of the contract ----------------------------------------------------------------
 @pytest.mark.parametrize("dim", DIMS)
-@pytest.mark.parametrize("name", CONTINUUM)
+@pytest.mark.parametrize("name", ELASTIC)
 def test_wave_speed(name, dim):
     mu, lam = lame(E, NU)
     expected = math.sqrt(E / RHO) if name == "weakly_compressible" else \
@@ -396,22 +398,46 @@ def test_validate_params_messages():
     (problem,) = validate_params("neo_hookian", {})
     assert "did you mean 'neo_hookean'" in problem and "stable_neo_hookean" in problem
     # Every schema entry is a full Param (the scene validator relies on the format).
-    for cls in MATERIALS.values():
-        for key, spec in cls.parameters.items():
-            if spec.choices:  # a string key: its default is one of the choices
-                assert spec.default in spec.choices
-                continue
+    def full(schema):
+        for key, spec in schema.items():
             assert spec.low < spec.high
-            numeric = spec.choices is None and spec.schema is None and spec.check is None
-            assert (spec.default is None) if spec.required else \
-                (spec.default is None or not numeric or spec.low <= spec.default <= spec.high)
+            if spec.schema is not None:
+                full(spec.schema)
+            elif spec.choices is not None:
+                assert spec.default is None or spec.default in spec.choices
+            else:
+                assert (spec.default is None) if spec.required else \
+                    (spec.default is None or spec.low <= spec.default <= spec.high)
+
+    for cls in MATERIALS.values():
+        full(cls.parameters)
 
 
 def test_make_material_errors_name_the_choices():
-    with pytest.raises(SceneError, match="valid: fixed_corotated, herschel_bulkley, linear_elastic"):
+    with pytest.raises(SceneError, match=f"valid: {', '.join(sorted(MATERIALS))}"):
         make_material(Spec("jelly", {}), 3)
     with pytest.raises(SceneError, match="nu: must be > -1, got -2"):
         make_material(Spec("neo_hookean", {"E": 1.0, "nu": -2.0}), 2)
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_stable_neo_hookean_alpha_is_smiths(dim):
+    """003 §7.2.1 prints alpha = 1 + mu/lam - mu lam/4; Smith et al. 2018 (eq. 12) have
+    1 + mu/lam - mu/(4 lam) in 3D, the root shift that makes P(I) = 0. The kernel never forms
+    alpha; this checks its tau against the textbook P F^T with Smith's alpha (3D) and the
+    2D rest-stable alpha = 1 + (2/3) mu/lam, on the energy's reparameterised moduli."""
+    rng = np.random.default_rng(12)
+    mat = material("stable_neo_hookean", dim)
+    mu, lam = mat.kernel_moduli()
+    alpha = 1 + mu / lam - mu / (4 * lam) if dim == 3 else 1 + 2 * mu / (3 * lam)
+    for F in [np.eye(dim)] + [random_F(rng, dim) for _ in range(5)]:
+        J, ic = np.linalg.det(F), np.sum(F * F)
+        P = mu * (1 - 1 / (ic + 1)) * F + lam * (J - alpha) * J * np.linalg.inv(F).T
+        # Same algebra in a different order: round-off of the O(10) stress.
+        assert np.allclose(stress(mat, F[None])[0], P @ F.T, rtol=0, atol=1e-12 * max(1, mu))
+    if dim == 3:
+        printed = 1 + mu / lam - mu * lam / 4
+        assert abs(3 * mu / 4 + lam * (1 - printed)) > 1.0  # the print is not rest stable
 
 
 def test_viscoelastic_bad_input():

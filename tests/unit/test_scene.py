@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from hpcmpm.errors import SceneError
+from hpcmpm.materials import MATERIALS
 from hpcmpm.scene import (BodySpec, ColliderSpec, MaterialSpec, PrescribedSpec, Scene, WallFace,
                           load_scene, parse_scene)
 
@@ -75,9 +76,7 @@ CASES = {
                          "valid: pic, flip, apic, mls)"),
     "unknown_material_type": (GOOD.replace('type = "neo_hookean"', 'type = "neo_hooke"'),
                               "materials[0].type: unknown value 'neo_hooke' (did you mean "
-                              "'neo_hookean'? valid: fixed_corotated, herschel_bulkley, "
-                              "linear_elastic, neo_hookean, oldroyd_b, peridynamic, snow, "
-                              "stable_neo_hookean, von_mises, weakly_compressible)"),
+                              f"'neo_hookean'? valid: {', '.join(sorted(MATERIALS))})"),
     "unknown_shape": (GOOD.replace('shape = "sphere"', 'shape = "spher"', 1),
                       "bodies[0].shape: unknown value 'spher' (did you mean 'sphere'? valid: "
                       "box, sphere, cylinder, mesh)"),
