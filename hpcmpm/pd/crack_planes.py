@@ -270,8 +270,6 @@ class CrackPlaneIntegralMPM(CrackPlaneForces, IntegralMPMExtension):
                 if len(rows):
                     at = start + rows
                     self._own = (at, p["x"][at].copy(), p["v"][at].copy(), f[rows].copy())
-                    f = f.copy()
-                    f[rows] = 0.0           # their force moves them, not the grid
             yield start, stop, f
 
     def after_g2p(self, sim, dt: float) -> None:

@@ -129,9 +129,24 @@ def test_plastic_return_lands_on_the_yield_surface():
     yielded = pts.bonds.state[PLASTIC_STATE] != 0.0
     assert yielded.sum() > 0.3 * intact.sum()
     # The corrected eq. 5.11 returns exactly: f = E^2/2 - psi_p = 0 up to round-off of
-    # E ~ sqrt(2 psi_p) (1e-12 of psi_p); bonds inside the surface are untouched.
+    # E ~ sqrt(2 psi_p) (1e-12 of psi_p).
     assert np.abs(after[yielded]).max() < 1e-12 * psi_p
-    assert np.all(after[intact & ~yielded] <= 0.0)
+    # The rest: inside the surface, or held outside by the dissipation guard, which are
+    # exactly the bonds whose return would have lengthened |s - e_p| (computed here).
+    b = pts.bonds
+    owner = np.repeat(np.arange(b.n), b.counts())
+    s_b = np.linalg.norm(pts.x[b.slot] - pts.x[owner], axis=1) / \
+        np.linalg.norm(pts.x0[b.slot] - pts.x0[owner], axis=1) - 1
+    eiso = m.eiso[: pts.n_owned]
+    e_dev = s_b - 0.5 * (eiso[owner] + eiso[b.slot])
+    k = m.beta * b.weight * (2 * MU + LAM) / np.linalg.norm(pts.x0[b.slot] - pts.x0[owner],
+                                                            axis=1)
+    E = k * e_dev
+    r = np.sqrt(2 * psi_p)
+    dep = (E - np.sign(E) * r) / k
+    held = intact & (0.5 * E * E > psi_p) & (np.abs(s_b - dep) > np.abs(s_b))
+    assert np.array_equal(intact & ~yielded & (after > 0.0), held)
+    assert held.sum() < 0.2 * yielded.sum()
     # Both half-bonds of a bond hold the same plastic stretch (bitwise), so forces cancel.
     b = pts.bonds
     owner = np.repeat(np.arange(b.n), b.counts())
