@@ -23,8 +23,10 @@ Each step, before the model's own pass (which then only applies ``max_bond_stret
 
 Two-time integration (``integration = "grid"``): particles with a broken bond (damage > 0)
 move by their own PD force, v <- v^n + dt (f/m + g), x <- x^n + dt v, instead of the grid
-velocity, the domain walls acting on them per particle (contact.py); their force is not
-scattered to the grid. The others move with the grid as usual.
+velocity, the domain walls acting on them per particle (contact.py). Their force still reaches
+the grid: they are still scattered with their mass and momentum, and the grid near them must
+see the force that balances that momentum for their intact neighbours. The others move with
+the grid as usual.
 This is what lets the two faces of a crack separate within one grid (003 §5.4).
 """
 
