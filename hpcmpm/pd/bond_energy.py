@@ -266,7 +266,8 @@ class BondEnergy:
         self.psi_p = float(plastic_yield)
         self.s0 = float(critical_stretch)
         self.c_dt = float(time_step_c)
-        self.F = np.empty((0, dim, dim))
+        self.F = None
+        self.resize(0)          # a rank may hold none of the body's particles
 
     def time_step_micromodulus(self) -> float:
         return self.c_dt
@@ -276,7 +277,7 @@ class BondEnergy:
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
-        if len(self.F) == n:
+        if self.F is not None and len(self.F) == n:
             return
         d = self.dim
         self.F = np.zeros((n, d, d))
