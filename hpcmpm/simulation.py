@@ -13,7 +13,7 @@ import logging
 import numpy as np
 
 from .boundaries import build_boundaries, build_prescribed
-from .errors import InstabilityError
+from .errors import InstabilityError, SceneError
 from .kernels.grid import update_velocity
 from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
@@ -51,6 +51,38 @@ def deformation_fields(materials, mode: str) -> dict[str, FieldSpec]:
     return specs
 
 
+def configured_materials(scene, dim: int) -> list[Material]:
+    """The scene's materials, made and configured against the scene; a problem only the whole
+    scene shows (a horizon below the spacing, a material named by another that is not there)
+    is a `SceneError` in the scene's format: ``{file}: materials[i]: ...``."""
+    materials = []
+    for i, spec in enumerate(scene.materials):
+        try:
+            material = make_material(spec, dim)
+            material.configure(scene)
+        except SceneError as exc:
+            raise SceneError([f"{scene.path}: materials[{i}]: {p}" for p in exc.problems]) \
+                from None
+        materials.append(material)
+    return materials
+
+
+def particle_field_specs(materials, mode: str, transfer: str,
+                         prescribed: bool) -> dict[str, FieldSpec]:
+    """The particle fields a scene declares besides the core ones: its deformation state in
+    ``mode``, its materials' own fields, ``C`` for APIC/MLS, ``prescribed`` when it has
+    prescribed sets. One source for `Simulation.particle_fields` and the scene's check of
+    ``output.fields``; ``materials`` are material classes or instances."""
+    specs = deformation_fields(materials, mode)
+    for material in materials:
+        specs.update(material.fields)
+    if SCHEMES[transfer] >= APIC:
+        specs["C"] = FieldSpec(TENSOR)
+    if prescribed:
+        specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
+    return specs
+
+
 class Simulation:
     """Particles, grid block, materials and boundaries of one rank, and the step over them."""
 
@@ -83,9 +115,7 @@ class Simulation:
         self._static_split = static(self.split_force)
         self.gravity = np.zeros(3)
         self.gravity[: self.dim] = scene.gravity
-        self.materials = [make_material(spec, self.dim) for spec in scene.materials]
-        for material in self.materials:
-            material.configure(scene)
+        self.materials = configured_materials(scene, self.dim)
         self.integrator = make_integrator(getattr(scene, "integrator", "explicit"), self)
         # F, J alone, or the velocity gradient L (`deformation_mode`).
         self.deformation = deformation_mode(self.materials,
@@ -141,14 +171,8 @@ class Simulation:
     # -- set-up ----------------------------------------------------------------------------
     def particle_fields(self) -> dict[str, FieldSpec]:
         """Union of the fields the materials and the chosen features declare."""
-        specs = deformation_fields(self.materials, self.deformation)
-        for material in self.materials:
-            specs.update(material.fields)
-        if self.scheme >= APIC:
-            specs["C"] = FieldSpec(TENSOR)
-        if self.scene.prescribed:
-            specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
-        return specs
+        return particle_field_specs(self.materials, self.deformation, self.scene.transfer,
+                                    bool(self.scene.prescribed))
 
     def add_extension(self, extension) -> None:
         """Add a step extension: its ``particle_forces(sim, dt)`` (if any) yields
