@@ -30,6 +30,7 @@ from ..pd.families import DEFAULT_HORIZON, INFLUENCES
 from ..pd import moduli
 from ..state import SCALAR, VECTOR, FieldSpec
 from .base import POISSON, YOUNG, ElasticMaterial, Material, Param, choice
+from .pd_models import EXTRA_PARAMETERS, check_chapter5
 
 
 def _is_bool(value):
@@ -58,7 +59,8 @@ class Peridynamic(Material):
 
     name = "peridynamic"
     parameters = {
-        "model": choice(("pmb", "lps", "correspondence"), "pmb", "bond model"),
+        "model": choice(("pmb", "lps", "correspondence", "bond_energy", "viscoelastic_lps"),
+                        "pmb", "bond model"),
         "integration": choice(("pd", "grid"), "pd",
                               "pd: own bond forces (003 Alg. 2); grid: integral-based MPM"),
         "E": YOUNG,
@@ -81,6 +83,8 @@ class Peridynamic(Material):
         "stress_material": Param(-math.inf, math.inf, False, None, check=_is_name,
                                  doc="correspondence: the material whose stress it uses"),
         "skin": Param(0.0, math.inf, False, 1.0, doc="PD halo skin in particle spacings"),
+        # Models of 003 ch. 5: materials/pd_models.py.
+        **EXTRA_PARAMETERS,
         "precracks": Param(-math.inf, math.inf, False, None, check=_precracks,
                            doc="segments (2D) or planar polygons (3D) no bond crosses"),
     }
@@ -100,6 +104,7 @@ class Peridynamic(Material):
             problem = moduli.check_pmb_poisson(dim, nu, plane)
             if problem:
                 raise SceneError(f"{where}: {problem}")
+        check_chapter5(prm, where)      # keys of the 003 ch. 5 models (pd_models.py)
         if prm["model"] == "correspondence" and not prm["stress_material"]:
             raise SceneError(f"{where}: stress_material: missing (the correspondence model "
                              "evaluates another material's stress)")
@@ -157,6 +162,9 @@ class Peridynamic(Material):
         P-wave modulus."""
         if self.params["model"] == "pmb":
             return self.micromodulus()
+        if self.params["model"] == "bond_energy":      # 003 ch. 5: materials/pd_models.py
+            from .pd_models import bond_energy_time_step_c
+            return bond_energy_time_step_c(self)
         return moduli.equivalent_micromodulus(self.dim, self.bulk, self.mu, self.delta,
                                               self.params["influence"])
 
@@ -178,6 +186,9 @@ class Peridynamic(Material):
             return PMB(self.micromodulus(), s0)
         if prm["model"] == "lps":
             return LPS(self.bulk, self.mu, s0, c_dt)
+        if prm["model"] in ("bond_energy", "viscoelastic_lps"):   # materials/pd_models.py
+            from .pd_models import make_chapter5_model
+            return make_chapter5_model(self, s0, c_dt)
         other = self.stress_model
 
         def stress(F, tau):

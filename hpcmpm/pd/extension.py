@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
+from .boundary import impose_prescribed_velocity
 from .contact import ParticleWalls
 from .families import find_families, half_bonds_per_particle
 from .geometry import damage, weighted_volume_sums
@@ -289,12 +290,14 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
             start, stop = self.prepare()
+            self.model.dt = dt      # rate models (viscoelastic_lps) integrate over the step
             f = self.compute_forces(start, stop)
             p = sim.particles
             v = p["v"][start:stop]
             x = p["x"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
             self.walls.apply(x, v, dt)
+            impose_prescribed_velocity(sim, start, stop, v)     # pd/boundary.py (wins)
             x += dt * v
             self.write_damage(start, stop)
 
@@ -304,11 +307,15 @@ class IntegralMPMExtension(CheckpointedBonds, PDExtension):
 
     def particle_forces(self, sim, dt: float):
         start, stop = self.prepare()
+        self.model.dt = dt          # rate models (viscoelastic_lps) integrate over the step
         f = self.compute_forces(start, stop)
         self.write_damage(start, stop)
         yield start, stop, f
 
 
 def make_extension(sim, material) -> PDExtension:
+    if material.params.get("crack_threshold") is not None:     # 003 §5.4: crack_planes.py
+        from .crack_planes import make_crack_plane_extension
+        return make_crack_plane_extension(sim, material)
     cls = IntegralMPMExtension if material.on_grid else PDBodyExtension
     return cls(sim, material)
