@@ -21,6 +21,8 @@ BENCHMARKS = {
     "parallel": "scene b on 1 and 2 MPI ranks: parallel efficiency",
     "memory": "bytes per particle (fields and peak RSS), elastic and snow, 2D and 3D",
     "startup": "process start to first step, cold and warm numba cache",
+    "semi_implicit": "explicit vs semi-implicit time to solution, CG iterations (Jacobi/none), "
+                     "Hessian-vector product vs explicit transfers",
     "plots": "PNG plots of bench_results/*.json into docs/img/",
 }
 
@@ -31,7 +33,7 @@ def scripts_dir() -> Path:
 
 
 def usage() -> str:
-    rows = "\n".join(f"  {name:<9} {doc}" for name, doc in BENCHMARKS.items())
+    rows = "\n".join(f"  {name:<13} {doc}" for name, doc in BENCHMARKS.items())
     return (f"usage: hpcmpm bench {{{','.join(BENCHMARKS)},all}} [ARGS...]\n{rows}\n"
             f"  all       every benchmark above, each with ARGS\n"
             f"ARGS go to the script; `hpcmpm bench peer --help` lists them.")

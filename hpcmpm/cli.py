@@ -1,4 +1,5 @@
-"""The `hpcmpm` command: argument parsing and error reporting only.
+"""The `hpcmpm` command line: argument parsing and error reporting only (the verbs live in
+runner, io.info, jobs and bench).
 
 Every `HpcmpmError` becomes one line per problem on stderr (``hpcmpm: error: ...``) and its
 exit code; nothing a user can cause ends in a traceback.
@@ -17,13 +18,9 @@ from .errors import HpcmpmError
 
 def _rank() -> int:
     # The launcher's environment says which rank this is, so the CLI needs no MPI import.
-    for var in ("PMI_RANK", "OMPI_COMM_WORLD_RANK", "PMIX_RANK", "SLURM_PROCID"):
-        if var in os.environ:
-            try:
-                return int(os.environ[var])
-            except ValueError:
-                pass
-    return 0
+    from .launcher import launcher_rank
+
+    return launcher_rank()
 
 
 def configure_logging(quiet: bool = False) -> None:
@@ -42,22 +39,33 @@ def _validate(args) -> int:
     return 0
 
 
+def count(n: int, noun: str) -> str:
+    """ "1 material", "2 materials"."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def _run(args) -> int:
     from . import numba_cache
+    from .signals import SignalFlag
 
-    numba_cache.configure()  # before the runner imports numba
-    from .runner import run_command
+    # From the first moment: a scheduler's warning during imports or compilation is kept for
+    # the run loop (which checkpoints on it) instead of killing the process.
+    with SignalFlag() as flag:
+        numba_cache.configure()  # before the runner imports numba
+        from .runner import run_command
 
-    return run_command(args)
+        return run_command(args, flag)
 
 
 def _restart(args) -> int:
     from . import numba_cache
+    from .signals import SignalFlag
 
-    numba_cache.configure()
-    from .runner import restart_command
+    with SignalFlag() as flag:
+        numba_cache.configure()
+        from .runner import restart_command
 
-    return restart_command(args)
+        return restart_command(args, flag)
 
 
 def _info(args) -> int:
@@ -93,60 +101,93 @@ def _plot(args) -> int:
     return plot_command(args)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hpcmpm", description=__doc__.splitlines()[0])
-    parser.add_argument("--version", action="version", version=f"hpcmpm {__version__}")
-    verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
+DESCRIPTION = ("hpcmpm: an MPI-distributed Material Point Method (MPM) solver with numba kernels. "
+               "Runs TOML scenes on any number of ranks (mpiexec -n N hpcmpm run SCENE), writes "
+               "HDF5 frames with an XDMF series for ParaView and checkpoints that restart on any "
+               "rank count.")
+EPILOG = ("Exit codes: 0 done, 2 invalid scene or arguments, 3 numerical instability, 4 a "
+          "checkpoint or frame that cannot be read or written, 5 output folder holds another "
+          "run, 6 not a readable frame or checkpoint (info), 75 checkpoint written on "
+          "SIGTERM/SIGUSR1. Scene format: docs/scene-format.md.")
+CHECKPOINT_EVERY_HELP = "also write a checkpoint every N steps (default: output.checkpoint_every)"
+CHECKPOINT_WALL_HELP = "also write a checkpoint every HH:MM:SS (or seconds) of wall time"
+QUIET_HELP = "no progress bar (warnings and errors are still printed)"
 
-    run = verbs.add_parser("run", help="run a scene")
-    run.add_argument("scene")
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="hpcmpm", description=DESCRIPTION, epilog=EPILOG)
+    parser.add_argument("--version", action="version", version=f"hpcmpm {__version__}")
+    verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB",
+                                  help="what to do; `hpcmpm VERB --help` for its options")
+
+    run = verbs.add_parser("run", help="run a scene", description="Run a scene from t = 0.")
+    run.add_argument("scene", help="the scene's TOML file")
     run.add_argument("--out", help="output folder (default runs/<scene name>)")
-    run.add_argument("--end-time", type=float, help="override simulation.end_time")
+    run.add_argument("--end-time", type=float, metavar="T",
+                     help="simulated time to stop at, > 0 (default: simulation.end_time)")
     run.add_argument("--set", action="append", metavar="KEY.PATH=VALUE",
-                     help="override a scene value, e.g. simulation.cfl=0.3 (repeatable)")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
+                     help="override a scene value, e.g. simulation.cfl=0.3 or "
+                          "materials.rubber.E=2e4 (repeatable)")
+    run.add_argument("--quiet", action="store_true", help=QUIET_HELP)
     run.add_argument("--force", action="store_true", help="replace another run's output")
-    run.add_argument("--checkpoint-every", type=int, metavar="N", help="checkpoint every N steps")
-    run.add_argument("--checkpoint-wall", metavar="HH:MM:SS",
-                     help="checkpoint every HH:MM:SS of wall time")
+    run.add_argument("--checkpoint-every", type=int, metavar="N", help=CHECKPOINT_EVERY_HELP)
+    run.add_argument("--checkpoint-wall", metavar="HH:MM:SS", help=CHECKPOINT_WALL_HELP)
     run.add_argument("--debug-checks", action="store_true",
                      help="check the global particle count every step")
     run.add_argument("--dry-run", action="store_true",
                      help="sample and decompose, report counts and memory per rank, exit")
     run.set_defaults(handler=_run)
 
-    restart = verbs.add_parser("restart", help="continue from a checkpoint")
-    restart.add_argument("checkpoint")
-    restart.add_argument("--end-time", type=float)
+    restart = verbs.add_parser("restart", help="continue from a checkpoint",
+                               description="Continue a run from a checkpoint, on any rank count.")
+    restart.add_argument("checkpoint", help="a ckpt_SSSSSSSSS.h5 file of the run")
+    restart.add_argument("--end-time", type=float, metavar="T",
+                         help="simulated time to stop at, later than the checkpoint's "
+                              "(default: the end time of the run)")
     restart.add_argument("--out", help="output folder (default: the checkpoint's folder)")
-    restart.add_argument("--quiet", action="store_true")
-    restart.add_argument("--checkpoint-every", type=int, metavar="N")
-    restart.add_argument("--checkpoint-wall", metavar="HH:MM:SS")
+    restart.add_argument("--quiet", action="store_true", help=QUIET_HELP)
+    restart.add_argument("--checkpoint-every", type=int, metavar="N", help=CHECKPOINT_EVERY_HELP)
+    restart.add_argument("--checkpoint-wall", metavar="HH:MM:SS", help=CHECKPOINT_WALL_HELP)
     restart.set_defaults(handler=_restart)
 
-    validate = verbs.add_parser("validate", help="check a scene file")
-    validate.add_argument("scene")
-    validate.add_argument("--set", action="append", metavar="KEY.PATH=VALUE")
+    validate = verbs.add_parser("validate", help="check a scene file",
+                                description="Check a scene: every problem on its own line "
+                                            "(exit 2), or a summary of what it holds.")
+    validate.add_argument("scene", help="the scene's TOML file")
+    validate.add_argument("--set", action="append", metavar="KEY.PATH=VALUE",
+                          help="override a scene value before checking (repeatable)")
     validate.set_defaults(handler=_validate)
 
-    info = verbs.add_parser("info", help="describe a frame or checkpoint file")
-    info.add_argument("file")
+    info = verbs.add_parser("info", help="describe a frame or checkpoint file",
+                            description="What a frame or checkpoint holds; a checkpoint is also "
+                                        "verified against its checksums.")
+    info.add_argument("file", help="a frame_NNNNNN.h5 or ckpt_SSSSSSSSS.h5 file")
     info.set_defaults(handler=_info)
 
-    job = verbs.add_parser("jobscript", help="render a SLURM or PBS job script")
-    job.add_argument("scene")
-    job.add_argument("--scheduler", choices=("slurm", "pbs"), required=True)
-    job.add_argument("--nodes", type=int, default=1)
-    job.add_argument("--ranks-per-node", type=int, default=1)
-    job.add_argument("--time", required=True, metavar="HH:MM:SS")
-    job.add_argument("--out", help="run output folder (default runs/<scene name>)")
-    job.add_argument("--activate", help="shell line that activates the environment")
+    job = verbs.add_parser("jobscript", help="render a SLURM or PBS job script",
+                           description="Render a job script that runs the scene, checkpoints "
+                                       "before the wall time and requeues itself.")
+    job.add_argument("scene", help="the scene's TOML file (checked now)")
+    job.add_argument("--scheduler", choices=("slurm", "pbs"), required=True,
+                     help="the batch system")
+    job.add_argument("--nodes", type=int, default=1, help="nodes to ask for (default 1)")
+    job.add_argument("--ranks-per-node", type=int, default=1,
+                     help="MPI ranks per node (default 1)")
+    job.add_argument("--time", required=True, metavar="HH:MM:SS", help="the job's wall time")
+    job.add_argument("--out", help="run output folder (default runs/<scene name>); created now, "
+                                   "since the scheduler opens the job's log in it")
+    job.add_argument("--activate", help="shell line that activates the environment "
+                                        "(default: source this environment's bin/activate)")
     job.add_argument("--output", "-o", help="write the script here instead of stdout")
+    job.add_argument("--mpi", metavar="TYPE", default="pmi2",
+                     help="SLURM: srun's --mpi plugin that gives the MPI library its ranks "
+                          "(default pmi2, for MPICH; pmix for many site Open MPIs; 'default' "
+                          "leaves the cluster's MpiDefault)")
     job.add_argument("extra", nargs="*", help="extra `hpcmpm run` arguments (after --)")
     job.set_defaults(handler=_jobscript)
 
     render = verbs.add_parser("render", help="pictures and a movie of a run (docs/output.md)")
-    render.add_argument("run_dir")
+    render.add_argument("run_dir", help="a run's output folder (frames and particles.xdmf)")
     render.add_argument("--field", metavar="NAME[:COMPONENT]",
                         help="colour by this frame field (default speed), e.g. material, J, v:x")
     render.add_argument("--frames", metavar="A:B:K", help="slice of the frames (default all)")
@@ -161,13 +202,14 @@ def build_parser() -> argparse.ArgumentParser:
     render.set_defaults(handler=_render)
 
     plot = verbs.add_parser("plot", help="time series of a run's diagnostics to PNG + CSV")
-    plot.add_argument("run_dir")
+    plot.add_argument("run_dir", help="a run's output folder (frames)")
     plot.add_argument("--out", help="output folder (default RUN_DIR)")
     plot.set_defaults(handler=_plot)
 
     bench = verbs.add_parser("bench", help="run the benchmarks (see BENCHMARKS.md)",
                              add_help=False)
-    bench.add_argument("bench_args", nargs=argparse.REMAINDER)
+    bench.add_argument("bench_args", nargs=argparse.REMAINDER,
+                       help="the benchmark's own arguments (hpcmpm bench --help)")
     bench.set_defaults(handler=_bench)
     return parser
 
@@ -185,8 +227,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except HpcmpmError as exc:
-        for line in str(exc).splitlines() or [type(exc).__name__]:
-            print(f"hpcmpm: error: {line}", file=sys.stderr)
+        # Every HpcmpmError is raised on all ranks alike (errors.py): rank 0 tells the user,
+        # once per job, and every rank exits with its code.
+        if _rank() == 0:
+            label = getattr(exc, "label", "error")
+            for line in str(exc).splitlines() or [type(exc).__name__]:
+                print(f"hpcmpm: {label}: {line}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("hpcmpm: interrupted", file=sys.stderr)

@@ -18,6 +18,8 @@ SCHEDULERS = ("slurm", "pbs")
 # Seconds before the wall time at which the run is told to checkpoint: enough for one step
 # plus a checkpoint write of a large run.
 SIGNAL_MARGIN = 300
+# srun's MPI plugin: PMI-2 gives MPICH (the PyPI wheel too) its ranks; see jobs/slurm.sh.in.
+DEFAULT_SRUN_MPI = "pmi2"
 
 
 class JobScriptError(HpcmpmError):
@@ -48,14 +50,21 @@ def parse_walltime(text: str) -> int:
 
 def render(scheduler: str, scene: str, nodes: int, ranks_per_node: int, walltime: str,
            out_dir: str | None = None, activate: str | None = None,
-           extra_args: list[str] | None = None, script_path: str = "job.sh") -> str:
+           extra_args: list[str] | None = None, script_path: str = "",
+           srun_mpi: str = DEFAULT_SRUN_MPI) -> str:
+    """The job script's text (no side effects). ``script_path``: where the script is saved, so
+    a PBS job resubmits that file (empty: the copy PBS runs). ``srun_mpi``: srun's ``--mpi``
+    plugin (``"default"``: no option, the cluster's MpiDefault)."""
     if scheduler not in SCHEDULERS:
         raise JobScriptError(f"--scheduler: must be one of {', '.join(SCHEDULERS)}, got {scheduler!r}")
     if nodes < 1 or ranks_per_node < 1:
         raise JobScriptError("--nodes and --ranks-per-node must be >= 1")
+    if not srun_mpi or not all(ch.isalnum() or ch in "_-." for ch in srun_mpi):
+        raise JobScriptError(f"--mpi: expected an srun MPI plugin name such as pmi2, pmix or "
+                             f"default, got {srun_mpi!r}")
     seconds = parse_walltime(walltime)
     margin = min(SIGNAL_MARGIN, max(seconds // 10, 10))
-    out_dir = out_dir or f"runs/{Path(scene).stem}"
+    out_dir = default_out_dir(scene, out_dir)
     extra = " " + " ".join(shlex.quote(a) for a in extra_args) if extra_args else ""
     mapping = {
         "job_name": Path(scene).stem, "nodes": nodes, "ranks_per_node": ranks_per_node,
@@ -63,20 +72,50 @@ def render(scheduler: str, scene: str, nodes: int, ranks_per_node: int, walltime
         "exit_code": EXIT_CHECKPOINTED_ON_SIGNAL, "scene": scene, "out_dir": out_dir,
         "activate": activate or f"source {shlex.quote(str(Path(sys.prefix) / 'bin' / 'activate'))}",
         "extra_args": extra, "end_time_arg": "", "script_path": script_path,
+        "srun_mpi": "" if srun_mpi == "default" else f" --mpi={srun_mpi}",
     }
     return Template(template_path(scheduler).read_text()).safe_substitute(mapping)
 
 
+def default_out_dir(scene: str, out_dir: str | None) -> str:
+    return out_dir or f"runs/{Path(scene).stem}"
+
+
+def check_run_arguments(scene: str, extra_args: list[str]) -> None:
+    """What the job will run, checked now rather than after a wait in the queue: the scene
+    (with the ``--set`` values among ``extra_args``) validates and the extra ``hpcmpm run``
+    arguments parse and pass the command line's checks."""
+    from .cli import build_parser
+    from .runner import check_options
+    from .scene import load_scene
+
+    try:
+        run_args = build_parser().parse_args(["run", scene, *extra_args])
+    except SystemExit as exc:  # argparse printed the usage line and what is wrong
+        raise JobScriptError(f"extra `hpcmpm run` arguments {extra_args}: not accepted "
+                             f"(see above)") from exc
+    load_scene(scene, run_args.set or [])
+    check_options(run_args)
+
+
 def jobscript_command(args) -> int:
+    extra = list(getattr(args, "extra", None) or [])
+    check_run_arguments(args.scene, extra)
+    output = getattr(args, "output", None)
     text = render(args.scheduler, args.scene, args.nodes, args.ranks_per_node, args.time,
                   out_dir=getattr(args, "out", None), activate=getattr(args, "activate", None),
-                  extra_args=getattr(args, "extra", None),
-                  script_path=getattr(args, "output", None) or "job.sh")
-    if getattr(args, "output", None):
-        Path(args.output).write_text(text)
-        Path(args.output).chmod(0o755)
-        print(f"wrote {args.output}; submit with "
-              f"{'sbatch' if args.scheduler == 'slurm' else 'qsub'} {args.output}")
+                  extra_args=extra, script_path=str(Path(output).resolve()) if output else "",
+                  srun_mpi=getattr(args, "mpi", None) or DEFAULT_SRUN_MPI)
+    # The scheduler opens the job's log in the output folder before the script runs.
+    log_dir = Path(default_out_dir(args.scene, getattr(args, "out", None)))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    if output:
+        Path(output).write_text(text)
+        Path(output).chmod(0o755)
+        print(f"wrote {output} (created {log_dir}/ for its log); submit from this folder with "
+              f"{'sbatch' if args.scheduler == 'slurm' else 'qsub'} {output}")
     else:
         sys.stdout.write(text)
+        print(f"hpcmpm: created {log_dir}/ for the job's log; submit from this folder",
+              file=sys.stderr)
     return 0

@@ -8,6 +8,10 @@ import time
 from tqdm import tqdm
 
 
+BAR_FORMAT = "{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}{postfix}]"
+COMPILING_FORMAT = "{l_bar}{bar}| t={n:.4g}/{total:.4g} [compiling, first step]"
+
+
 class Progress:
     """A tqdm bar over simulated time; ``disabled`` for --quiet and ranks other than 0."""
 
@@ -19,20 +23,35 @@ class Progress:
         self._t0 = 0.0
         self._step0 = 0
         self._last_refresh = 0.0
+        self._timed = False
 
     def start(self, sim_time: float, step: int) -> None:
         self._t0 = time.perf_counter()
         self._step0 = step
+        self._timed = False
         if self.disabled:
             return
+        # Until the first step is done its time is mostly compilation: no ETA from it.
         self.bar = tqdm(total=self.end_time, initial=sim_time, unit="t", file=sys.stderr,
-                        dynamic_ncols=True, bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} "
-                        "[{elapsed}<{remaining}{postfix}]", leave=True)
+                        dynamic_ncols=True, bar_format=COMPILING_FORMAT, leave=True)
+        self.bar.refresh()
 
     def update(self, sim_time: float, step: int, dt: float) -> None:
         if self.bar is None:
             return
         now = time.perf_counter()
+        if not self._timed:
+            # The first step is done: rate and ETA count from here (tqdm's from its start_t
+            # and initial), so the kernels' compilation does not inflate the ETA.
+            self._timed = True
+            self._t0, self._step0 = now, step
+            self.bar.start_t = self.bar._time()
+            self.bar.initial = self.bar.n = min(sim_time, self.end_time)
+            self.bar.bar_format = BAR_FORMAT
+            self.bar.set_postfix_str(f"step {step}, dt {dt:.3g}", refresh=False)
+            self.bar.refresh()
+            self._last_refresh = now
+            return
         if now - self._last_refresh < 0.5 and sim_time < self.end_time:
             return  # redrawing every step would cost more than small steps take
         self._last_refresh = now

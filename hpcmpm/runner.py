@@ -8,9 +8,11 @@ collective first, so no rank is left waiting in a collective the others skipped.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,8 +20,9 @@ import numpy as np
 
 from . import __version__
 from .errors import EXIT_CHECKPOINTED_ON_SIGNAL, HpcmpmError, OutputExistsError, SceneError
-from .parallel import Communicator, Domain
+from .parallel import Communicator, Domain, check_launch
 from .progress import Progress
+from .signals import SignalFlag
 from .simulation import Simulation
 
 log = logging.getLogger(__name__)
@@ -27,9 +30,10 @@ log = logging.getLogger(__name__)
 
 class CheckpointedOnSignal(HpcmpmError):
     """The run received SIGTERM/SIGUSR1, wrote a checkpoint and stopped (resume with
-    `hpcmpm restart`)."""
+    `hpcmpm restart`): an expected event of a batch job, not an error."""
 
     exit_code = EXIT_CHECKPOINTED_ON_SIGNAL
+    label = "stopped"
 
 
 @dataclass
@@ -55,41 +59,31 @@ def parse_wall_time(text: str | None) -> float | None:
     seconds = 0.0
     for part in parts:
         seconds = seconds * 60.0 + part
-    if seconds <= 0 or len(parts) > 3:
+    if not math.isfinite(seconds) or seconds <= 0 or len(parts) > 3:
         raise SceneError(f"--checkpoint-wall: expected a positive HH:MM:SS, got {text!r}")
     return seconds
 
 
-class SignalFlag:
-    """Set by SIGTERM/SIGUSR1 (what SLURM sends ahead of the wall time); read at step
-    boundaries only, so a checkpoint is never written from inside a step."""
+def frame_time(k: int, every: float, end_time: float) -> float:
+    """``min(k * every, end_time)`` rounded to 15 significant digits: the time a reader means.
 
-    SIGNALS = (signal.SIGTERM, signal.SIGUSR1)
-
-    def __init__(self) -> None:
-        self.raised: int | None = None
-        self._previous = {}
-
-    def __enter__(self):
-        for sig in self.SIGNALS:
-            self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame) -> None:
-        self.raised = signum
-
-    def __exit__(self, *exc):
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        return False
+    In binary 33 * 0.1 is 3.3000000000000003, one ulp above the 3.3 the scene asks for; that
+    number would land in every frame, checkpoint and ``particles.xdmf`` (which prints the
+    shortest round-trip repr). 15 digits is below float64's 15.95, so the rounding never moves
+    a time by more than an ulp or two, and frames stay distinct and increasing."""
+    return min(float(f"{k * every:.15g}"), end_time)
 
 
 class Runner:
     """Drives a `Simulation` to ``end_time`` with frames, checkpoints and progress."""
 
     def __init__(self, sim: Simulation, writer, options: RunOptions, frame_index: int = 0,
-                 first_frame_written: bool = False, observer=None):
+                 first_frame_written: bool = False, observer=None,
+                 signal_flag: SignalFlag | None = None):
         self.sim = sim
+        # Installed by the CLI at start-up, so a signal during imports or compilation is kept;
+        # otherwise the run installs its own.
+        self.signal_flag = signal_flag
         self.observer = observer  # called as observer(sim) after every step (tests, studies)
         self.domain = sim.domain
         self.writer = writer
@@ -101,10 +95,16 @@ class Runner:
         every = sim.scene.output.every
         self.frame_every = every if every and every > 0 else options.end_time
 
+    def restore_time_step_state(self, meta: dict) -> None:
+        """The time-step state a checkpoint holds: the last dt and whether the fixed-dt
+        warning was given (so a restarted run does not repeat it)."""
+        self.last_dt = float(meta.get("last_dt", self.last_dt))
+        self.dt_warned = bool(meta.get("dt_warned", self.dt_warned))
+
     # -- schedule --------------------------------------------------------------------------
     def frame_time(self, k: int) -> float:
         """Simulated time of frame k: 0, every, 2 every, ..., and the end time."""
-        return min(k * self.frame_every, self.options.end_time)
+        return frame_time(k, self.frame_every, self.options.end_time)
 
     def choose_dt(self) -> float:
         sim = self.sim
@@ -130,7 +130,7 @@ class Runner:
         if not self.first_frame_written:
             self.write_frame()
             self.first_frame_written = True
-        with SignalFlag() as flag:
+        with nullcontext(self.signal_flag) if self.signal_flag else SignalFlag() as flag:
             while sim.time < opts.end_time * (1 - 1e-12):
                 # Agreed with the time step's health check (one allreduce for both).
                 self.domain.stop_requested = flag.raised is not None
@@ -138,13 +138,16 @@ class Runner:
                 if self.domain.stop_agreed:
                     self.write_checkpoint()
                     progress.close()
+                    raised = [s for s in self.domain.allgather(flag.raised) if s is not None]
                     raise CheckpointedOnSignal(
-                        f"signal received: checkpoint written at step {sim.step_index}, "
-                        f"t={sim.time:.6g} in {opts.out_dir}; continue with "
-                        f"`hpcmpm restart {self.latest_checkpoint_path}`")
+                        f"{signal.Signals(raised[0]).name} received: checkpoint written at "
+                        f"step {sim.step_index}, t={sim.time:.6g} in {opts.out_dir}; continue "
+                        f"with `hpcmpm restart {self.latest_checkpoint_path}`")
                 target = self.frame_time(self.frame_index)
                 clipped = sim.time + dt >= target * (1 - 1e-12)
-                if clipped:
+                if clipped and abs(target - sim.time - dt) > 1e-9 * dt:
+                    # A gap that differs from dt by round-off only keeps dt's bits: a run
+                    # that ends at a frame and its restart then step exactly like one run.
                     dt = target - sim.time
                 sim.step(dt)
                 self.last_dt = dt
@@ -242,22 +245,67 @@ def load_scene_on_root(comm: Communicator, path: str, overrides) -> object:
     return scene
 
 
+def check_options(args) -> None:
+    """The command-line values of ``run``/``restart`` through the scene's own checks (one line
+    each, `SceneError`, exit 2): ``--end-time`` as ``simulation.end_time``, ``--checkpoint-every``
+    as ``output.checkpoint_every``, ``--checkpoint-wall`` a positive wall time, ``--out`` a
+    folder. Deterministic, so every rank raises the same error without a collective."""
+    from .scene import CommandLineChecker
+
+    c = CommandLineChecker()
+    c.option("--end-time", getattr(args, "end_time", None), low=0.0)
+    c.option("--checkpoint-every", getattr(args, "checkpoint_every", None), low=1,
+             low_open=False, integer=True)
+    try:
+        parse_wall_time(getattr(args, "checkpoint_wall", None))
+    except SceneError as exc:
+        c.problems.extend(exc.problems)
+    out = getattr(args, "out", None)
+    if out is not None:
+        c.problems.extend(output_dir_problems(Path(out)))
+    c.raise_problems()
+
+
+def output_dir_problems(out_dir: Path) -> list[str]:
+    """Why ``out_dir`` cannot be an output folder (a file, or under a file), or nothing."""
+    for path in (out_dir, *out_dir.parents):
+        if path.exists() and not path.is_dir():
+            what = "is" if path == out_dir else f"lies under {path}, which is"
+            return [f"--out: {out_dir} {what} a file, not a folder"]
+        if path.exists():
+            break
+    return []
+
+
+def make_output_dir(comm: Communicator, out_dir: Path) -> None:
+    """Rank 0 creates ``out_dir``; a failure is the same `SceneError` on every rank."""
+    problem = None
+    if comm.rank == 0:
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            problem = f"--out: cannot create {out_dir}: {exc.strerror or exc}"
+    problem = comm.bcast(problem)
+    if problem:
+        raise SceneError(problem)
+
+
 def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
     """A run never overwrites another run's output without ``--force``."""
     problem = None
     if comm.rank == 0:
         existing = [p for p in out_dir.glob("*") if p.suffix in (".h5", ".xdmf", ".tmp")] \
-            if out_dir.exists() else []
+            if out_dir.is_dir() else []
         if existing and not force:
             problem = (f"{out_dir} already holds output of another run ({len(existing)} files); "
                        f"choose another --out or pass --force to replace it")
         elif existing:
             for p in existing:
                 p.unlink()
-        out_dir.mkdir(parents=True, exist_ok=True)
     problem = comm.bcast(problem)
     if problem:
         raise OutputExistsError(problem)
+    make_output_dir(comm, out_dir)
 
 
 def make_domain(scene, comm: Communicator | None = None) -> Domain:
@@ -277,9 +325,13 @@ def make_writer(sim: Simulation, out_dir: Path, restart_chain: list[str], frame_
     from .io.frames import FrameWriter
 
     provenance = {"restart_chain": restart_chain, "n_ranks": sim.domain.size,
-                  "hpcmpm_version": __version__}
-    return FrameWriter(out_dir, sim.domain, sim.scene.text, sim.dim,
-                       list(sim.scene.output.fields), provenance, first_frame=frame_index)
+                  "hpcmpm_version": __version__, "scene_path": str(sim.scene.path)}
+    # Step extensions add their own fields to frames (SPB-MPM: model, damage, EE).
+    fields = list(sim.scene.output.fields)
+    fields += [f for e in sim.extensions for f in getattr(e, "output_fields", ())
+               if f not in fields]
+    return FrameWriter(out_dir, sim.domain, sim.scene.text, sim.dim, fields, provenance,
+                       first_frame=frame_index)
 
 
 def report_done(comm: Communicator, out_dir: Path, diag: dict, wall: float, steps: int,
@@ -308,8 +360,10 @@ def simulate(scene, end_time: float | None = None, observer=None, comm=None) -> 
     return sim
 
 
-def run_command(args) -> int:
+def run_command(args, signal_flag: SignalFlag | None = None) -> int:
+    check_options(args)
     comm = Communicator()
+    check_launch(comm)
     scene = load_scene_on_root(comm, args.scene, getattr(args, "set", None) or [])
     if getattr(args, "dry_run", False):
         from .startup import dry_run
@@ -322,19 +376,25 @@ def run_command(args) -> int:
     sim = Simulation(scene, domain)
     initial_particles(sim)
     options = RunOptions(
-        out_dir=out_dir, end_time=float(args.end_time or scene.end_time),
+        out_dir=out_dir,
+        end_time=float(scene.end_time if args.end_time is None else args.end_time),
         quiet=bool(args.quiet), checkpoint_every=args.checkpoint_every or
         scene.output.checkpoint_every, checkpoint_wall=parse_wall_time(args.checkpoint_wall),
         checkpoint_keep=scene.output.checkpoint_keep,
         debug_checks=bool(getattr(args, "debug_checks", False)),
         restart_chain=[str(Path(args.scene).resolve())])
-    return execute(sim, options, comm, frame_index=0, first_frame_written=False)
+    return execute(sim, options, comm, frame_index=0, first_frame_written=False,
+                   signal_flag=signal_flag)
 
 
 def execute(sim: Simulation, options: RunOptions, comm: Communicator, frame_index: int,
-            first_frame_written: bool) -> int:
+            first_frame_written: bool, signal_flag: SignalFlag | None = None,
+            restored: dict | None = None) -> int:
     writer = make_writer(sim, options.out_dir, options.restart_chain, frame_index)
-    runner = Runner(sim, writer, options, frame_index, first_frame_written)
+    runner = Runner(sim, writer, options, frame_index, first_frame_written,
+                    signal_flag=signal_flag)
+    if restored is not None:
+        runner.restore_time_step_state(restored)
     start, step0 = time.perf_counter(), sim.step_index
     diag = runner.run()
     n = sim.domain.sum(sim.particles.n)
@@ -357,9 +417,14 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     sim = Simulation(scene, domain)
     specs = dict(sim.particles.specs)
     sim.particles = ParticleSet(scene.dim, specs, capacity=len(fields["id"]))
+    derived = set()
     if "J" in specs and "J" not in fields and "F" in fields:
         # Written before fluid-only scenes carried J alone: J = det F is their whole state.
         fields["J"] = np.linalg.det(fields["F"])
+        derived = {"F"}
+    mismatch = field_mismatch(Path(ckpt).name, set(fields) - derived, set(specs))
+    if mismatch and comm.rank == 0:
+        log.warning("%s", mismatch)
     sim.particles.append({k: v for k, v in fields.items() if k in specs})
     same_count = int(meta["n_ranks"]) == domain.size
     if same_count:
@@ -377,14 +442,31 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
     return sim, meta, end_time if end_time is not None else float(meta["end_time"])
 
 
-def restart_command(args) -> int:
+def field_mismatch(name: str, stored: set[str], declared: set[str]) -> str | None:
+    """One line when the checkpoint's particle fields and the ones this run declares differ
+    (a checkpoint of another version of hpcmpm): what is dropped, what starts from defaults."""
+    dropped, filled = sorted(stored - declared), sorted(declared - stored)
+    parts = []
+    if dropped:
+        parts.append(f"drops checkpoint fields this run does not declare: {', '.join(dropped)}")
+    if filled:
+        parts.append(f"starts declared fields the checkpoint lacks from their defaults: "
+                     f"{', '.join(filled)}")
+    return f"restart from {name} {'; '.join(parts)}" if parts else None
+
+
+def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
+    check_options(args)
     comm = Communicator()
+    check_launch(comm)
     ckpt = Path(args.checkpoint)
     sim, meta, end_time = restore_simulation(str(ckpt), comm, args.end_time)
+    if sim.time >= end_time * (1 - 1e-12):
+        return nothing_to_run(comm, ckpt, sim.time, end_time, args.end_time is not None)
     sim.domain.install_abort_hook()
     out_dir = Path(args.out) if args.out else ckpt.parent
-    if args.out and comm.rank == 0:
-        out_dir.mkdir(parents=True, exist_ok=True)
+    if args.out:
+        make_output_dir(comm, out_dir)
     chain = list(meta.get("restart_chain", [])) + [str(ckpt.resolve())]
     options = RunOptions(out_dir=out_dir, end_time=end_time, quiet=bool(args.quiet),
                          checkpoint_keep=sim.scene.output.checkpoint_keep,
@@ -393,4 +475,19 @@ def restart_command(args) -> int:
                          checkpoint_wall=parse_wall_time(getattr(args, "checkpoint_wall", None)),
                          restart_chain=chain)
     runner_frames = int(meta["frame_index"])
-    return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True)
+    return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True,
+                   signal_flag=signal_flag, restored=meta)
+
+
+def nothing_to_run(comm: Communicator, ckpt: Path, time_now: float, end_time: float,
+                   given: bool) -> int:
+    """A restart whose checkpoint is at or past the end time runs no step and writes nothing:
+    an explicit ``--end-time`` that is not later is an argument error (exit 2); a checkpoint at
+    its run's own end says so and exits 0."""
+    if given:
+        raise SceneError(f"--end-time: must be later than the checkpoint's time t={time_now:.9g}"
+                         f" ({ckpt.name}), got {end_time:g}")
+    if comm.rank == 0:
+        print(f"hpcmpm: nothing to run: {ckpt} is at t={time_now:.9g}, the end time of its run; "
+              f"nothing was computed or written (continue further with --end-time T)")
+    return 0

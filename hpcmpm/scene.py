@@ -257,6 +257,27 @@ class Checker:
         return self.vector(table, key, path, 3)
 
 
+class CommandLineChecker(Checker):
+    """The scene's checks for values given as command-line options: the same bounds and words,
+    the option in place of the file and key (``--end-time: must be > 0.0, got -1.0``)."""
+
+    def __init__(self):
+        super().__init__("command line")
+
+    def problem(self, path: str, message: str) -> None:
+        self.problems.append(f"{path}: {message}")
+
+    def option(self, name: str, value, **bounds):
+        """``value`` of option ``name`` checked like a scene number (None: not given)."""
+        if value is None:
+            return None
+        return self.number({name: value}, name, "", **bounds)
+
+    def raise_problems(self) -> None:
+        if self.problems:
+            raise SceneError(self.problems)
+
+
 def _join(path: str, key) -> str:
     return f"{path}.{key}" if path else str(key)
 
@@ -288,26 +309,49 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]
             value = text
         parts = key.split(".")
         node: Any = raw
-        ok = True
-        for part in parts[:-1]:
-            if isinstance(node, list) and part.isdigit() and int(part) < len(node):
-                node = node[int(part)]
+        problem = None
+        for depth, part in enumerate(parts[:-1]):
+            if isinstance(node, list):
+                index, problem = _entry_index(node, part, parts[depth - 1] if depth else "")
+                if problem:
+                    break
+                node = node[index]
             elif isinstance(node, dict):
                 node = node.setdefault(part, {})
             else:
-                problems.append(f"{file}: --set {key}: no such key")
-                ok = False
+                problem = "no such key"
                 break
-        if not ok:
-            continue
         last = parts[-1]
-        if isinstance(node, list) and last.isdigit() and int(last) < len(node):
-            node[int(last)] = value
-        elif isinstance(node, dict):
+        if problem is None and isinstance(node, list):
+            index, problem = _entry_index(node, last, parts[-2] if len(parts) > 1 else "")
+            if problem is None:
+                node[index] = value
+        elif problem is None and isinstance(node, dict):
             node[last] = value
-        else:
-            problems.append(f"{file}: --set {key}: no such key")
+        elif problem is None:
+            problem = "no such key"
+        if problem:
+            problems.append(f"{file}: --set {key}: {problem}")
     return problems
+
+
+# The name an array entry gets when it has none (the sections' own defaults, e.g. "body0").
+DEFAULT_ENTRY_NAMES = {"bodies": "body", "colliders": "collider", "prescribed": "prescribed"}
+
+
+def _entry_index(entries: list, part: str, section: str) -> tuple[int, str | None]:
+    """Index of an array-of-tables entry named by ``part``: its position (``bodies.0``) or its
+    ``name`` (``materials.rubber``, ``bodies.body1`` for an unnamed second body)."""
+    if part.isdigit():
+        if int(part) < len(entries):
+            return int(part), None
+        return 0, f"no entry {part} ({section} has {len(entries)})"
+    names = [e.get("name", f"{DEFAULT_ENTRY_NAMES.get(section, section)}{i}")
+             if isinstance(e, dict) else None for i, e in enumerate(entries)]
+    if part in names:
+        return names.index(part), None
+    known = ", ".join(str(n) for n in names if n is not None)
+    return 0, f"no entry named {part!r} in {section} (names: {known}; or give an index)"
 
 
 # -- sections ---------------------------------------------------------------------------------
@@ -316,6 +360,11 @@ SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "trans
                    "periodic")
 SOLVER_MODES = ("linearized", "newton")
 PRECONDITIONERS = ("jacobi", "none")
+
+
+# Cell indices come from x / dx in float64: beyond 2**53 cells along an axis neighbouring
+# cells are no longer distinct numbers.
+MAX_CELLS_PER_AXIS = 2.0 ** 53
 
 
 def _simulation(c: Checker, raw: dict) -> dict:
@@ -347,6 +396,10 @@ def _simulation(c: Checker, raw: dict) -> dict:
             c.problem(f"{p}.domain.upper", f"must exceed domain.lower in every component, "
                                            f"got lower {list(lo)}, upper {list(hi)}")
             lo = hi = None
+        elif lo and hi and not all(math.isfinite(h - l) for l, h in zip(lo, hi)):
+            c.problem(f"{p}.domain", f"extent upper - lower overflows a float64, got lower "
+                                     f"{list(lo)}, upper {list(hi)}")
+            lo = hi = None
     out["domain_lo"], out["domain_hi"] = lo, hi
     out["dx"] = c.number(sim, "dx", p, low=0.0)
     out["particles_per_cell"] = c.number(sim, "particles_per_cell", p, 2, low=1, low_open=False,
@@ -365,7 +418,14 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out["integrator"] = c.string(sim, "integrator", p, "explicit", tuple(INTEGRATORS))
     if out["dx"] and lo and hi:
         cells = [(h - l) / out["dx"] for l, h in zip(lo, hi)]
-        if any(abs(n - round(n)) > 1e-6 * max(n, 1) for n in cells):
+        extents = [h - l for l, h in zip(lo, hi)]
+        if any(n < 1 - 1e-6 for n in cells):
+            c.problem(f"{p}.dx", f"must not exceed the smallest domain extent {min(extents):g} "
+                                 f"(the grid needs a cell along every axis), got {out['dx']:g}")
+        elif not all(n <= MAX_CELLS_PER_AXIS for n in cells):
+            c.problem(f"{p}.dx", f"gives {max(cells):.3g} cells along an axis, more than the "
+                                 f"2**53 a float64 position can tell apart, got {out['dx']:g}")
+        elif any(abs(n - round(n)) > 1e-6 * max(n, 1) for n in cells):
             c.problem(f"{p}.dx", f"must divide the domain size evenly, got {out['dx']} for "
                                  f"extent {[h - l for l, h in zip(lo, hi)]}")
     return out
@@ -422,30 +482,32 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
 
 
 def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
-                         transfer, prescribed, integrator) -> None:
+                         transfer, prescribed, integrator, dim) -> None:
     """Each requested field must exist in this scene's particles (the writer would skip it
-    silently otherwise): a core field, a field of one of its materials, ``C`` for APIC/MLS,
-    ``prescribed`` when there are prescribed sets."""
-    from .materials import MATERIALS
+    silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
+    what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
+    from .materials import make_material
+    from .simulation import deformation_mode, particle_field_specs
+    from .solvers import INTEGRATORS
     from .state import CORE_FIELDS
 
-    from .simulation import deformation_fields, deformation_mode
-    from .solvers import INTEGRATORS
-
-    if transfer is None or integrator is None or not materials_complete:
+    if transfer is None or integrator is None or not materials_complete or not dim:
         return  # a bad material or transfer is reported already; the list would mislead
-    valid = list(CORE_FIELDS)
-    # The deformation state (F, J, or L with F and/or J); tau, the Kirchhoff stress, is
-    # computed for output.
-    classes = [MATERIALS[m.type] for m in materials]
-    mode = deformation_mode(classes, INTEGRATORS[integrator].needs_velocity_gradient)
-    valid += list(deformation_fields(classes, mode)) + ["tau"]
-    for m in materials:
-        valid += [f for f in MATERIALS[m.type].fields if f not in valid]
-    if transfer in ("apic", "mls"):
-        valid.append("C")
-    if prescribed:
-        valid.append("prescribed")
+    # Instances, as the run makes them: a material may declare fields by its parameters (J2:
+    # s_zz in 2D only, T with a specific heat); a parameter combination its constructor
+    # refuses is reported here, in the scene's format.
+    instances = []
+    for i, m in enumerate(materials):
+        try:
+            instances.append(make_material(m, dim))
+        except SceneError as exc:
+            for problem in exc.problems:
+                c.problem(f"materials[{i}]", problem)
+    if len(instances) < len(materials):
+        return
+    mode = deformation_mode(instances, INTEGRATORS[integrator].needs_velocity_gradient)
+    valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, transfer,
+                                                          bool(prescribed))) + ["tau"]
     for i, name in enumerate(output.fields):
         if name not in valid:
             close = difflib.get_close_matches(name, valid, n=1)
@@ -493,7 +555,8 @@ def _materials(c: Checker, raw: dict) -> tuple[MaterialSpec, ...]:
         p = f"materials[{i}]"
         name = c.string(m, "name", p)
         mtype = c.string(m, "type", p, choices=sorted(MATERIALS))
-        density = c.number(m, "density", p, low=0.0)
+        # high=inf: finite (the Checker admits +inf only where no upper bound is given)
+        density = c.number(m, "density", p, low=0.0, high=math.inf)
         if name in names:
             c.problem(f"{p}.name", f"duplicate material name {name!r}")
         names.add(name)
@@ -760,7 +823,7 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     entries = raw.get("materials")
     _check_output_fields(c, output, materials,
                          isinstance(entries, list) and len(entries) == len(materials),
-                         sim["transfer"], prescribed, sim["integrator"])
+                         sim["transfer"], prescribed, sim["integrator"], sim["dim"])
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)
@@ -774,12 +837,12 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
 
 
 def _check_materials_in_scene(c: Checker, scene: Scene) -> None:
-    """Each material's parameters against the rest of the scene (`Material.scene_problems`:
+    """Each material's parameters against the rest of the scene (`Material.spec_problems`:
     e.g. a peridynamic horizon below the particle spacing, a pre-crack outside the domain)."""
     from .materials import MATERIALS
 
     for i, spec in enumerate(scene.materials):
-        for problem in MATERIALS[spec.type].scene_problems(spec, scene):
+        for problem in MATERIALS[spec.type].spec_problems(spec, scene):
             key, _, what = problem.partition(": ")
             c.problem(f"materials[{i}].{key}", what)
 

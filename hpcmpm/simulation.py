@@ -13,7 +13,7 @@ import logging
 import numpy as np
 
 from .boundaries import build_boundaries, build_prescribed
-from .errors import InstabilityError
+from .errors import InstabilityError, SceneError
 from .kernels.grid import update_velocity
 from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
@@ -51,6 +51,38 @@ def deformation_fields(materials, mode: str) -> dict[str, FieldSpec]:
     return specs
 
 
+def configured_materials(scene, dim: int) -> list[Material]:
+    """The scene's materials, made and configured against the scene; a problem only the whole
+    scene shows (a horizon below the spacing, a material named by another that is not there)
+    is a `SceneError` in the scene's format: ``{file}: materials[i]: ...``."""
+    materials = []
+    for i, spec in enumerate(scene.materials):
+        try:
+            material = make_material(spec, dim)
+            material.configure(scene)
+        except SceneError as exc:
+            raise SceneError([f"{scene.path}: materials[{i}]: {p}" for p in exc.problems]) \
+                from None
+        materials.append(material)
+    return materials
+
+
+def particle_field_specs(materials, mode: str, transfer: str,
+                         prescribed: bool) -> dict[str, FieldSpec]:
+    """The particle fields a scene declares besides the core ones: its deformation state in
+    ``mode``, its materials' own fields, ``C`` for APIC/MLS, ``prescribed`` when it has
+    prescribed sets. One source for `Simulation.particle_fields` and the scene's check of
+    ``output.fields``; ``materials`` are material classes or instances."""
+    specs = deformation_fields(materials, mode)
+    for material in materials:
+        specs.update(material.fields)
+    if SCHEMES[transfer] >= APIC:
+        specs["C"] = FieldSpec(TENSOR)
+    if prescribed:
+        specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
+    return specs
+
+
 class Simulation:
     """Particles, grid block, materials and boundaries of one rank, and the step over them."""
 
@@ -83,9 +115,7 @@ class Simulation:
         self._static_split = static(self.split_force)
         self.gravity = np.zeros(3)
         self.gravity[: self.dim] = scene.gravity
-        self.materials = [make_material(spec, self.dim) for spec in scene.materials]
-        for material in self.materials:
-            material.configure(scene)
+        self.materials = configured_materials(scene, self.dim)
         self.integrator = make_integrator(getattr(scene, "integrator", "explicit"), self)
         # F, J alone, or the velocity gradient L (`deformation_mode`).
         self.deformation = deformation_mode(self.materials,
@@ -105,6 +135,7 @@ class Simulation:
         self._dummy_C = np.zeros((1, self.dim, self.dim))
         self.stress_chunk = self.stress_chunk_bytes // (8 * self.dim * self.dim)
         self._tau = np.empty((self.stress_chunk, self.dim, self.dim))
+        self._zero_tau = np.zeros((0, self.dim, self.dim))  # scatter_mass_momentum only
         self._bad = np.empty(MAX_REPORTED, dtype=np.int64)
         self._keys = np.empty(0, dtype=np.int64)
         self._order = np.empty(0, dtype=np.int64)
@@ -124,10 +155,14 @@ class Simulation:
         self.extensions: list = []
         self._force_sources: list = []
         self._after_g2p: list = []
-        # A material that works through a step extension (peridynamics) makes its own.
+        self._stress_hooks: list = []
+        # A material that works through a step extension (peridynamics, SPB-MPM) makes its
+        # own (None: one it shares was made already).
         for material in self.materials:
             if hasattr(material, "make_extension"):
-                self.add_extension(material.make_extension(self))
+                extension = material.make_extension(self)
+                if extension is not None:
+                    self.add_extension(extension)
         self.time = 0.0
         self.step_index = 0
         # Optional ``forcing(sim, dt)`` that adds ``dt * b`` to particle velocities before P2G:
@@ -141,14 +176,8 @@ class Simulation:
     # -- set-up ----------------------------------------------------------------------------
     def particle_fields(self) -> dict[str, FieldSpec]:
         """Union of the fields the materials and the chosen features declare."""
-        specs = deformation_fields(self.materials, self.deformation)
-        for material in self.materials:
-            specs.update(material.fields)
-        if self.scheme >= APIC:
-            specs["C"] = FieldSpec(TENSOR)
-        if self.scene.prescribed:
-            specs["prescribed"] = FieldSpec(SCALAR, "i4", -1)
-        return specs
+        return particle_field_specs(self.materials, self.deformation, self.scene.transfer,
+                                    bool(self.scene.prescribed))
 
     def add_extension(self, extension) -> None:
         """Add a step extension: its ``particle_forces(sim, dt)`` (if any) yields
@@ -160,6 +189,15 @@ class Simulation:
             self._force_sources.append(extension)
         if hasattr(extension, "after_g2p"):
             self._after_g2p.append(extension)
+        # SPB-MPM (003 eq. 6.10): ``stress_chunk(sim, g, start, stop, tau, dt)`` sees each
+        # chunk's Kirchhoff stress between the material kernel and P2G (and may zero rows
+        # of it); ``grid_scattered`` names scalar grid fields it scatters there, summed to
+        # owners with the mass.
+        if hasattr(extension, "stress_chunk"):
+            self._stress_hooks.append(extension)
+        for name in getattr(extension, "grid_scattered", ()):
+            self.grid.declare(name, SCALAR)
+            self._scattered.append(name)
 
     # Load-balance weight of a particle with no work besides the MPM step, in the integer
     # units of `load_weights` (1/64 resolves the measured cost of a PD half-bond, pd/load.py).
@@ -299,6 +337,9 @@ class Simulation:
                     fields = {name: a[start:stop] for name, a in arrays.items()}
                     fields["tau"] = tau
                     material.update_stress(fields, dt)
+                for hook in self._stress_hooks:
+                    with t("spb_energy"):
+                        hook.stress_chunk(self, g, start, stop, tau, dt)
                 with t("p2g"):
                     SCATTER[self.dim](
                         x[start:stop], v[start:stop],
@@ -310,6 +351,29 @@ class Simulation:
             with t("p2g"):
                 for clamp in self.prescribed:
                     clamp.scatter(p, grid, self.order)
+
+    def scatter_mass_momentum(self) -> None:
+        """P2G of mass and momentum only (no stress): the semi-implicit step finds the
+        stress impulse in its solve. The P2G kernel with dt = 0 and a zero stress adds none."""
+        p, grid = self.particles, self.grid
+        with self.phase("p2g"):
+            if len(self._zero_tau) < p.n:
+                self._zero_tau = np.zeros((p.capacity, self.dim, self.dim))
+            impulse = grid["impulse"] if self.split_force else grid["momentum"]
+            C = p["C"] if "C" in p else None
+            ranges = [(0, p.n)] if self._all_on_grid else \
+                [self.group_slices[g] for g in self._on_grid]
+            for start, stop in ranges:
+                if stop > start:
+                    SCATTER[self.dim](
+                        p["x"][start:stop], p["v"][start:stop],
+                        self._dummy_C if C is None else C[start:stop], p["mass"][start:stop],
+                        p["vol0"][start:stop], self._zero_tau[: stop - start],
+                        self._static_scheme, self._static_order, self.dinv_factor, self.dx,
+                        self.domain_lo, grid.origin, 0.0, self._static_split, grid["mass"],
+                        grid["momentum"], impulse)
+            for clamp in self.prescribed:
+                clamp.scatter(p, grid, self.order)
 
     def scatter_forces(self, dt: float) -> None:
         """The force channel: per-particle forces of the step extensions (peridynamic bond
@@ -476,9 +540,15 @@ class Simulation:
         local[8] += sum(e.strain_energy(self) for e in self.extensions
                         if hasattr(e, "strain_energy"))
         total = self.domain.sum(local)
-        return {
+        out = {
             "mass": total[0],
             "momentum": total[1:4].copy(), "angular_momentum": total[4:7].copy(),
             "kinetic_energy": total[7], "elastic_energy": total[8],
             "total_energy": total[7] + total[8],
         }
+        # The integrator's own figures (semi-implicit: CG iterations per step since the
+        # previous call, i.e. since the previous frame in a run); the same on every rank.
+        report = getattr(self.integrator, "diagnostics", None)
+        if report is not None:
+            out.update(report())
+        return out

@@ -278,8 +278,10 @@ def validate_report(scene) -> str:
         count, exact = estimate_count(scene)
     estimate = estimate_memory(scene, count, 1, exact, body_counts)
     available = available_memory()
-    head = (f"{scene.path}: ok ({'' if exact else 'about '}{count} particles, "
-            f"{len(scene.materials)} materials, dim {scene.dim})")
+    from .cli import count as counted
+
+    head = (f"{scene.path}: ok ({'' if exact else 'about '}{counted(count, 'particle')}, "
+            f"{counted(len(scene.materials), 'material')}, dim {scene.dim})")
     memory = f"{scene.path}: memory estimate: {estimate.describe()}"
     if available is None:
         return f"{head}\n{memory}"

@@ -241,7 +241,8 @@ def machine_info() -> dict:
         pass
     import numba
 
-    info = {"cpu": model, "cores": os.cpu_count(), "python": platform.python_version(),
+    info = {"cpu": model, "cpu_flags": cpu_flags(), "cores": os.cpu_count(),
+            "cores_usable": len(os.sched_getaffinity(0)), "python": platform.python_version(),
             "numpy": np.__version__, "numba": numba.__version__,
             "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
             "NUMBA_NUM_THREADS": os.environ.get("NUMBA_NUM_THREADS"),
@@ -261,6 +262,94 @@ def machine_info() -> dict:
     except (OSError, subprocess.SubprocessError):
         pass
     return info
+
+
+def cpu_flags() -> str:
+    """The CPU's feature flags (/proc/cpuinfo), which decide the vector code numba and Taichi's
+    LLVM emit: part of what a timing depends on."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+# -- separate launches ----------------------------------------------------------------------
+# One launch's timings move with the host (other processes, which vCPU a thread lands on, the
+# memory a process happens to get): 45 % for the peer between launches of the same command.
+# So a ratio is reported as its range over several launches, each a separate process.
+RATIO_PREFIXES = ("ratio_", "efficiency")
+
+
+def launch_separately(script: Path, argv_per_launch: list[list[str]], name: str,
+                      timeout: float = 3600) -> list[dict]:
+    """Run ``script --in-process ARGV`` once per argument list, each in its own process
+    writing ``name`` into a folder of its own; returns the launches' JSON documents in order."""
+    import tempfile
+
+    docs = []
+    with tempfile.TemporaryDirectory(prefix="bench-launch-") as tmp:
+        for i, argv in enumerate(argv_per_launch):
+            out = Path(tmp) / str(i)
+            cmd = [sys.executable, str(script), *argv, "--in-process", "--out", str(out)]
+            print(f"launch {i + 1}/{len(argv_per_launch)}: {' '.join(cmd[1:])}", flush=True)
+            proc = subprocess.run(cmd, timeout=timeout)
+            if proc.returncode:
+                raise RuntimeError(f"{script.name} launch {i + 1} failed ({proc.returncode})")
+            docs.append(json.loads((out / name).read_text()))
+    return docs
+
+
+def merge_launches(docs: list[dict]) -> dict:
+    """One document from several launches: per scene the first launch's record, every ratio
+    ``r`` also as ``r_range`` (min, max) and ``r_launches`` (all values), and every launch's
+    whole record under ``launches``."""
+    by_scene: dict[str, list[dict]] = {}
+    for doc in docs:
+        for r in doc["results"]:
+            by_scene.setdefault(r["scene"], []).append(r)
+    results = []
+    for scene, records in by_scene.items():
+        merged = dict(records[0])
+        for key, value in records[0].items():
+            if key.startswith(RATIO_PREFIXES) and isinstance(value, (int, float)):
+                values = [float(r[key]) for r in records]
+                merged[f"{key}_launches"] = values
+                merged[f"{key}_range"] = [min(values), max(values)]
+        merged["launches"] = records
+        results.append(merged)
+    machines = [d["machine"] for d in docs]
+    return {"machine": machines[-1], "machines": machines, "launch_count": len(docs),
+            "results": results}
+
+
+def add_launch_arguments(ap) -> None:
+    """``--launches N`` and the internal ``--in-process`` of a script whose ratios are
+    reported over separate launches."""
+    ap.add_argument("--launches", type=int, default=3,
+                    help="separate processes per scene, each holding that scene alone; every "
+                         "ratio is reported as its range over them (default 3)")
+    ap.add_argument("--in-process", action="store_true",
+                    help="run the scenes in this process (what each launch does)")
+
+
+def run_launches(script: Path, args, keys: list[str], name: str, passthrough: list[str]) -> dict:
+    """The launches of ``script``: for launch 1..N, every scene in its own process (scenes
+    interleaved, so a slow spell of the host spreads over them); merged."""
+    if args.launches < 1:
+        raise SystemExit("--launches must be >= 1")
+    argv = [[*passthrough, "--scene", key] for _ in range(args.launches) for key in keys]
+    return merge_launches(launch_separately(script, argv, name))
+
+
+def range_text(r: dict, key: str) -> str:
+    """``"lo-hi (n launches)"`` of a merged ratio, or the single value."""
+    if f"{key}_range" in r:
+        lo, hi = r[f"{key}_range"]
+        return f"{lo:.2f}-{hi:.2f} ({len(r[f'{key}_launches'])} launches)"
+    return f"{r[key]:.2f} (1 launch)"
 
 
 def write_json(name: str, payload: dict, out_dir: Path | None = None) -> Path:

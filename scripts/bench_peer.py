@@ -12,7 +12,12 @@ Reports ms/step (min and median over repetitions), particle-steps/s, the ratio h
 (throughput, > 1 means hpcmpm is faster), and hpcmpm's phase times. Writes
 bench_results/peer.json.
 
-    python scripts/bench_peer.py --scene all --reps 7
+Each scene runs in a process of its own, ``--launches`` times (default 3): one Taichi runtime
+never holds several scenes, and the ratio is reported as its range over the launches (the
+peer's time moved by 45 % between launches of the same command; BENCHMARKS.md). Every launch
+records the machine: CPU model and flags, usable cores, load average, thread settings.
+
+    python scripts/bench_peer.py --scene all --reps 7 --launches 3
 """
 
 from __future__ import annotations
@@ -81,7 +86,20 @@ def bench_scene(key: str, steps: int, reps: int, smoke: bool, warmup: int) -> di
         "hpcmpm_phases_ms_per_step": bc.phase_ms(sim.timers, steps * reps),
         "hpcmpm_output_ms_per_frame": output_ms,
         "max_position_difference_cells": float(np.abs(x_hp - x_peer).max() * s.n_grid),
+        # OS threads of this process after the run (Taichi's workers included): the thread
+        # settings the timing was taken under.
+        "process_threads": len(os.listdir("/proc/self/task")) if os.path.isdir(
+            "/proc/self/task") else None,
+        "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
     }
+
+
+def passthrough(args) -> list[str]:
+    out = ["--reps", str(args.reps), "--warmup", str(args.warmup)]
+    out += ["--steps", str(args.steps)] if args.steps else []
+    out += ["--smoke"] if args.smoke else []
+    out += ["--taichi-threads", str(args.taichi_threads)]
+    return out
 
 
 def main(argv=None) -> int:
@@ -92,20 +110,28 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=7)
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--smoke", action="store_true", help="tiny scenes (tests)")
+    ap.add_argument("--taichi-threads", type=int, default=1,
+                    help="Taichi's cpu_max_num_threads (default 1: one core each)")
     ap.add_argument("--out", default=None, help="results folder (default bench_results/)")
+    bc.add_launch_arguments(ap)
     args = ap.parse_args(argv)
     try:
         import mls_mpm
     except ImportError as exc:
         print(f"taichi not installed (pip install -e '.[bench]'): {exc}", file=sys.stderr)
         return 3
-    mls_mpm.init(threads=1)  # one core each: hpcmpm runs with NUMBA_NUM_THREADS=1
-    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     keys = ["a", "a_fc", "b"] if args.scene == "all" else [args.scene]
-    results = []
-    for key in keys:
-        steps = args.steps or (5 if args.smoke else DEFAULT_STEPS[key])
-        results.append(bench_scene(key, steps, args.reps, args.smoke, args.warmup))
+    if args.in_process:
+        mls_mpm.init(threads=args.taichi_threads)
+        os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+        results = []
+        for key in keys:
+            steps = args.steps or (5 if args.smoke else DEFAULT_STEPS[key])
+            results.append(bench_scene(key, steps, args.reps, args.smoke, args.warmup))
+        doc = {"machine": bc.machine_info(), "results": results}
+    else:
+        doc = bc.run_launches(Path(__file__), args, keys, "peer.json", passthrough(args))
+    results = doc["results"]
     bc.print_table(
         ["scene", "particles", "hpcmpm ms/step min", "med", "Mpart-steps/s",
          "peer ms/step min", "med", "Mpart-steps/s", "hpcmpm/peer", "max |dx| cells"],
@@ -115,11 +141,15 @@ def main(argv=None) -> int:
           r["peer"]["particle_steps_per_s_best"] / 1e6, r["ratio_hpcmpm_over_peer_min"],
           r["max_position_difference_cells"]] for r in results])
     for r in results:
+        if "launches" in r:
+            print(f"{r['scene']}: hpcmpm/peer over separate launches: min "
+                  f"{bc.range_text(r, 'ratio_hpcmpm_over_peer_min')}, median "
+                  f"{bc.range_text(r, 'ratio_hpcmpm_over_peer_median')}; peer ms/step (min) "
+                  + ", ".join(f"{x['peer']['ms_per_step_min']:.3f}" for x in r["launches"]))
         print(f"{r['scene']}: hpcmpm phases (ms/step): " + ", ".join(
             f"{k} {v:.3f}" for k, v in r["hpcmpm_phases_ms_per_step"].items())
             + f"; output {r['hpcmpm_output_ms_per_frame']:.2f} ms/frame")
-    path = bc.write_json("peer.json", {"machine": bc.machine_info(), "results": results},
-                         args.out)
+    path = bc.write_json("peer.json", doc, args.out)
     print(f"wrote {path}")
     return 0
 

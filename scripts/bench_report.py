@@ -29,12 +29,27 @@ def load(folder: Path, name: str):
     return json.loads(path.read_text()) if path.exists() else None
 
 
+VECTOR_FLAGS = ("avx512f", "avx512_fp16", "avx2", "fma", "sse4_2")
+
+
 def machine_line(doc) -> str:
     m = doc["machine"]
     load = ", ".join(f"{x:.2f}" for x in m.get("loadavg_1_5_15min", []))
-    return (f"_{m['date']}, {m['cpu']}, {m['cores']} cores, Python {m['python']}, numba "
-            f"{m['numba']}, taichi {m.get('taichi')}, git {m.get('git')}; load average at the "
-            f"end {load}_")
+    flags = m.get("cpu_flags", "").split()
+    isa = " ".join(f for f in VECTOR_FLAGS if f in flags) or "flags not recorded"
+    launches = doc.get("launch_count")
+    runs = f"; {launches} separate launches per scene" if launches else ""
+    return (f"_{m['date']}, {m['cpu']} ({isa}), {m['cores']} cores, Python {m['python']}, "
+            f"numba {m['numba']}, taichi {m.get('taichi')}, git {m.get('git')}; load average "
+            f"at the end {load}{runs}_")
+
+
+def ratio_range(r: dict, key: str) -> str:
+    """"lo-hi" over the separate launches (a single launch: its value and "1 launch")."""
+    if f"{key}_range" in r:
+        lo, hi = r[f"{key}_range"]
+        return f"{lo:.2f}-{hi:.2f}"
+    return f"{r[key]:.2f} (1 launch)"
 
 
 def main(argv=None) -> int:
@@ -49,14 +64,17 @@ def main(argv=None) -> int:
         print(table(
             ["scene", "particles", "hpcmpm ms/step min / median", "Taichi ms/step min / median",
              "hpcmpm M particle-steps/s (median)", "Taichi M particle-steps/s (median)",
-             "hpcmpm / Taichi (min)", "(median)", "max position difference, cells"],
+             "hpcmpm / Taichi (min), range over launches", "(median), range",
+             "max position difference, cells"],
             [[r["scene"], r["particles"],
               f"{r['hpcmpm']['ms_per_step_min']:.3f} / {r['hpcmpm']['ms_per_step_median']:.3f}",
               f"{r['peer']['ms_per_step_min']:.3f} / {r['peer']['ms_per_step_median']:.3f}",
               r["hpcmpm"]["particle_steps_per_s_median"] / 1e6,
               r["peer"]["particle_steps_per_s_median"] / 1e6,
-              r["ratio_hpcmpm_over_peer_min"], r["ratio_hpcmpm_over_peer_median"],
+              ratio_range(r, "ratio_hpcmpm_over_peer_min"),
+              ratio_range(r, "ratio_hpcmpm_over_peer_median"),
               r["max_position_difference_cells"]] for r in peer["results"]]))
+        print("\n(ms/step columns: the first launch; the ratios: their range over all launches)")
         print("\nhpcmpm phase times (ms/step, mean over the timed steps):\n")
         print(table(["scene"] + PHASES + ["sum"],
                     [[r["scene"]] + [r["hpcmpm_phases_ms_per_step"].get(k, 0.0) for k in PHASES]
@@ -74,11 +92,12 @@ def main(argv=None) -> int:
         print(machine_line(ceiling) + "\n")
         print(table(
             ["scene", "particles", "ceiling ms/step min / median", "hpcmpm ms/step min / median",
-             "hpcmpm / ceiling (min)", "(median)"],
+             "hpcmpm / ceiling (min), range over launches", "(median), range"],
             [[r["scene"], r["particles"],
               f"{r['ceiling']['ms_per_step_min']:.3f} / {r['ceiling']['ms_per_step_median']:.3f}",
               f"{r['hpcmpm']['ms_per_step_min']:.3f} / {r['hpcmpm']['ms_per_step_median']:.3f}",
-              r["ratio_hpcmpm_over_ceiling_min"], r["ratio_hpcmpm_over_ceiling_median"]]
+              ratio_range(r, "ratio_hpcmpm_over_ceiling_min"),
+              ratio_range(r, "ratio_hpcmpm_over_ceiling_median")]
              for r in ceiling["results"]]))
         print()
     par = load(folder, "parallel.json")
@@ -90,8 +109,11 @@ def main(argv=None) -> int:
                       v["particle_steps_per_s_median"] / 1e6] for k, v in par["runs"].items()]))
         print()
         for code, e in par["efficiency"].items():
+            rounds = e.get("efficiency_median_launches", [])
+            spread = (f"; per round {min(rounds):.3f}-{max(rounds):.3f} over {len(rounds)} "
+                      f"rounds of separate launches" if rounds else "")
             print(f"- {code}: efficiency t1/(2 t2) = {e['efficiency_median']:.3f} (medians), "
-                  f"{e['efficiency_min']:.3f} (minima)")
+                  f"{e['efficiency_min']:.3f} (minima){spread}")
         for k in ("hpcmpm_1", "hpcmpm_2"):
             ph = par["runs"].get(k, {}).get("phases_max_over_ranks_s")
             if ph:

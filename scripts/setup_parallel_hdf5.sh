@@ -7,10 +7,11 @@
 # `mpich` wheel and a serial h5py, so rank 0 writes every file. Parallel HDF5 needs an HDF5 built
 # against the same MPI that mpi4py and h5py link, which on Debian means root + apt-get:
 #   Debian's MPICH + libhdf5-mpich-dev, then mpi4py and h5py compiled from source against them
-#   (docs/output.md; facts in shared/notes/mpi-and-hdf5.md). About 6 minutes on 2 cores the
-#   first time (mpi4py ~3 min, h5py ~3 min); pip caches the built wheels, so a rerun is fast.
+#   (docs/output.md, "Parallel HDF5"). About 6 minutes on 2 cores the first time (mpi4py ~3 min,
+#   h5py ~3 min); pip caches the built wheels, so a rerun is fast.
 # Without root or apt-get it prints "parallel HDF5 not available; serial mode only" and exits 0:
-# hpcmpm then writes in serial mode, which is always correct.
+# hpcmpm then writes in serial mode, which is always correct. Where root and apt-get are there,
+# any failure (apt-get, a build) is an error: it prints what failed and exits 1.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${HPCMPM_MPIO_VENV:-$root/.venv-mpio}"
@@ -22,16 +23,20 @@ unavailable() {
     exit 0
 }
 
+failed() {
+    echo "[setup_parallel_hdf5] error: $1" >&2
+    exit 1
+}
+
+. "$root/scripts/apt.sh"
 [ "$(id -u)" = 0 ] || unavailable "needs root for apt-get"
 command -v apt-get >/dev/null 2>&1 || unavailable "no apt-get on this machine"
 
 t0=$SECONDS
 echo "[setup_parallel_hdf5] apt-get: mpich libmpich-dev libhdf5-mpich-dev pkg-config"
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq >/dev/null || unavailable "apt-get update failed"
-apt-get install -y -qq --no-install-recommends mpich libmpich-dev libhdf5-mpich-dev pkg-config \
-    >/dev/null || unavailable "apt-get install failed"
-[ -d "$hdf5_dir" ] || unavailable "no HDF5 tree at $hdf5_dir"
+apt_install "parallel HDF5" mpich libmpich-dev libhdf5-mpich-dev pkg-config \
+    || failed "apt-get could not install Debian's MPICH and parallel HDF5 (see above)"
+[ -d "$hdf5_dir" ] || failed "no HDF5 tree at $hdf5_dir after installing libhdf5-mpich-dev"
 echo "[setup_parallel_hdf5] apt done in $((SECONDS - t0)) s"
 
 # Call the .mpich names explicitly: with Open MPI also installed, plain mpicc may be Open MPI's.
@@ -49,8 +54,8 @@ pip=("$venv/bin/python" -m pip install --quiet)
 
 t1=$SECONDS
 echo "[setup_parallel_hdf5] building mpi4py against Debian's MPICH (a few minutes)"
-# Route (b) of the notes: mpi4py from source, so no LD_LIBRARY_PATH trick is needed at run time
-# (the PyPI binary wheel links libmpi.so.12, which Debian's MPICH does not ship).
+# mpi4py from source, so no LD_LIBRARY_PATH trick is needed at run time (the PyPI binary wheel
+# links libmpi.so.12, which Debian's MPICH does not ship: it has libmpich.so.12 only).
 "${pip[@]}" --no-build-isolation --no-binary=mpi4py "mpi4py>=4.0"
 echo "[setup_parallel_hdf5] mpi4py done in $((SECONDS - t1)) s"
 

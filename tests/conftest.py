@@ -34,6 +34,10 @@ RANKS_ARG = "mpi_ranks"
 # Wall-clock limit of one mpiexec launch; the child's own pytest-timeout fires a little
 # earlier so a hang prints the stacks of the stuck rank before the launch is killed.
 MPI_TIMEOUT = float(os.environ.get("HPCMPM_MPI_TIMEOUT", "240"))
+# Seconds the launch must end before the parent test's own pytest-timeout, so that the harness,
+# not pytest-timeout, stops it (and kills its ranks, which pytest-timeout would orphan).
+TIMEOUT_MARGIN = 15
+WRONG_WORLD_SIZE = 17  # exit code of a child whose COMM_WORLD is not the size it was launched for
 
 
 # Set by MPICH/Hydra and Open MPI in every rank they start.
@@ -60,6 +64,22 @@ def in_mpi_child() -> bool:
 def pytest_configure(config):
     config.addinivalue_line(
         "markers", "parallel(ranks): re-run this test under mpiexec with each listed rank count")
+    check_world_size()
+
+
+def check_world_size() -> None:
+    """In a child the harness launched for N ranks, MPI must see N ranks. An mpiexec of another
+    MPI (Open MPI's on PATH, mpi4py built with MPICH) starts N separate 1-rank copies instead,
+    and every halo, migration and load-balance test would pass at size 1."""
+    if os.environ.get(CHILD_ENV) != "1" or not os.environ.get(RANKS_ENV):
+        return
+    from mpi4py import MPI
+
+    wanted, got = int(os.environ[RANKS_ENV]), MPI.COMM_WORLD.Get_size()
+    if got != wanted:
+        pytest.exit(f"MPI test harness: launched for {wanted} ranks, but COMM_WORLD has {got} "
+                    f"(the mpiexec does not belong to the MPI that mpi4py uses: "
+                    f"{_mpiexec()})", returncode=WRONG_WORLD_SIZE)
 
 
 def pytest_generate_tests(metafunc):
@@ -82,7 +102,22 @@ def _mpiexec() -> str:
     return str(local) if local.exists() else "mpiexec"
 
 
+def launch_timeout(item) -> float:
+    """The mpiexec launch's limit: MPI_TIMEOUT, or less when the test's pytest-timeout (its
+    marker, else the ini value) would fire first."""
+    marker = item.get_closest_marker("timeout")
+    limit = None
+    if marker is not None and (marker.args or "timeout" in marker.kwargs):
+        limit = float(marker.kwargs.get("timeout", marker.args[0] if marker.args else 0))
+    elif item.config.getini("timeout"):
+        limit = float(item.config.getini("timeout"))
+    if not limit:
+        return MPI_TIMEOUT
+    return max(10.0, min(MPI_TIMEOUT, limit - TIMEOUT_MARGIN))
+
+
 def _run_under_mpi(item, n_ranks: int) -> None:
+    timeout = launch_timeout(item)
     env = dict(os.environ)
     env[CHILD_ENV] = "1"
     env[RANKS_ENV] = str(n_ranks)
@@ -96,25 +131,37 @@ def _run_under_mpi(item, n_ranks: int) -> None:
     nodeid = item.nodeid
     cmd = [_mpiexec(), "-n", str(n_ranks), sys.executable, "-m", "mpi4py", "-m", "pytest",
            nodeid, "-q", "-x", "--no-header", "-p", "no:cacheprovider",
-           f"--timeout={max(10, int(MPI_TIMEOUT) - 20)}",
+           f"--timeout={max(5, int(timeout) - 10)}",
            # A rank stuck inside an MPI call never returns to Python, where a SIGALRM would
            # be handled: the thread method dumps the stacks and exits from a watchdog thread.
            "--timeout-method=thread", "--rootdir", str(ROOT)]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        out, _ = proc.communicate(timeout=MPI_TIMEOUT)
+        out, _ = proc.communicate(timeout=timeout)
         timed_out = False
     except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)  # the launcher and the ranks it started
+        _kill_group(proc)  # the launcher and the ranks it started
         out, _ = proc.communicate()
         timed_out = True
+    finally:
+        _kill_group(proc)  # also when pytest-timeout or ^C interrupts the wait
     if timed_out:
-        pytest.fail(f"{nodeid} on {n_ranks} ranks did not finish in {MPI_TIMEOUT:.0f} s "
+        pytest.fail(f"{nodeid} on {n_ranks} ranks did not finish in {timeout:.0f} s "
                     f"(deadlock?)\n{out[-12000:]}", pytrace=False)
+    if proc.returncode == WRONG_WORLD_SIZE:
+        pytest.fail(f"{nodeid}: the launch did not give {n_ranks} ranks:\n{out[-3000:]}",
+                    pytrace=False)
     if proc.returncode != 0:
         pytest.fail(f"{nodeid} failed on {n_ranks} ranks (exit code {proc.returncode}):\n"
                     f"{out[-12000:]}", pytrace=False)
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
 
 
 @pytest.hookimpl(tryfirst=True)

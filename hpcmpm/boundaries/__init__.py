@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .colliders import Collider
-from .prescribed import (PrescribedSet, apply_prescribed, mark_nodes, mark_prescribed_particles,
-                         parameters)
+from .prescribed import PrescribedSet, mark_prescribed_particles
 from .walls import Walls
 
 
@@ -35,5 +34,5 @@ def build_prescribed(scene) -> list[PrescribedSet]:
     return [PrescribedSet(spec, i, scene.dim) for i, spec in enumerate(scene.prescribed)]
 
 
-__all__ = ["Collider", "PrescribedSet", "Walls", "apply_prescribed", "build_boundaries",
-           "build_prescribed", "mark_nodes", "mark_prescribed_particles", "parameters"]
+__all__ = ["Collider", "PrescribedSet", "Walls", "build_boundaries", "build_prescribed",
+           "mark_prescribed_particles"]

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from ._block import block3, mass3, omega3, vec3
-from .contact import CONDITIONS, project
+from .contact import CONDITIONS, NO_BASIS, NO_COUNT, constrain, project
 
 HALF_SPACE, SPHERE, BOX, CYLINDER = 0, 1, 2, 3
 SHAPES = {"half_space": HALF_SPACE, "sphere": SPHERE, "box": BOX, "cylinder": CYLINDER}
@@ -143,9 +143,10 @@ def project_relative(shape, size, centre, R, v_lin, omega, condition, friction, 
 
 @njit(cache=True)
 def project_collider(velocity, mass, use_mass, lo, hi, origin, dx, domain_lo, shape, size,
-                     centre, R, v_lin, omega, condition, friction):
+                     centre, R, v_lin, omega, condition, friction, record, basis, count):
     """Project the velocity of every node inside the collider (``phi <= 0``), relative to the
-    collider's rigid velocity ``v + omega x (x - c)``.
+    collider's rigid velocity ``v + omega x (x - c)``; with ``record``, leave it and add the
+    directions the collider fixes to ``basis``/``count`` instead (`contact.constrain`).
 
     velocity (n0, n1, n2, dim) and mass (n0, n1, n2) are 3D views of the block (n2 = 1 in 2D),
     visited over the block-index box ``lo <= j < hi`` that bounds the collider; origin,
@@ -159,6 +160,17 @@ def project_collider(velocity, mass, use_mass, lo, hi, origin, dx, domain_lo, sh
                 if use_mass and mass[i, j, k] <= 0.0:
                     continue
                 x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
+                if record:
+                    phi, n0, n1, n2 = world_level_set(shape, size, centre, R, x0, x1, x2)
+                    if phi > 0.0:
+                        continue
+                    w0 = v_lin[0] + omega[1] * x2 - omega[2] * x1
+                    w1 = v_lin[1] + omega[2] * x0 - omega[0] * x2
+                    w2 = v_lin[2] + omega[0] * x1 - omega[1] * x0
+                    u2 = velocity[i, j, k, 2] - w2 if dim == 3 else 0.0
+                    constrain(basis, count, i, j, k, velocity[i, j, k, 0] - w0,
+                              velocity[i, j, k, 1] - w1, u2, n0, n1, n2, condition, dim)
+                    continue
                 u2 = velocity[i, j, k, 2] if dim == 3 else 0.0
                 inside, r0, r1, r2 = project_relative(
                     shape, size, centre, R, v_lin, omega, condition, friction, x0, x1, x2,
@@ -266,6 +278,16 @@ class Collider:
         move into the obstacle are those inside it at t + dt. Evaluating at t would let a
         moving collider sweep over material for one step before pushing it (Stomakhin 2013
         §8 uses the same choice). The active window is checked at the same time."""
+        self._visit(velocity, origin, dx, domain_lo, t, dt, mass, False, NO_BASIS, NO_COUNT)
+
+    def constrain(self, velocity: np.ndarray, origin, dx: float, domain_lo, t: float,
+                  dt: float, mass: np.ndarray, basis: np.ndarray, count: np.ndarray) -> None:
+        """Add the directions the collider fixes at the trial ``velocity`` (placed at t + dt,
+        as in `apply`) to ``basis`` (block3 + (3, 3)) and ``count`` (block3): the semi-implicit
+        solve's constraint mask."""
+        self._visit(velocity, origin, dx, domain_lo, t, dt, mass, True, basis, count)
+
+    def _visit(self, velocity, origin, dx, domain_lo, t, dt, mass, record, basis, count):
         t_end = t + dt
         if not self.active(t_end):
             return
@@ -280,7 +302,8 @@ class Collider:
         if np.any(hi <= lo):
             return
         project_collider(v3, m3, use_mass, lo, hi, org, float(dx), lo_x, self.shape, self.size,
-                         centre, R, self.velocity, self.omega, self.condition, self.friction)
+                         centre, R, self.velocity, self.omega, self.condition, self.friction,
+                         record, basis, count)
 
     def apply_to_particles(self, x: np.ndarray, v: np.ndarray, t: float, dt: float) -> int:
         """Off-grid particles x, v (n, dim) (peridynamic bodies, 003 Alg. 2): the velocity of

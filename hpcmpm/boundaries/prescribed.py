@@ -16,11 +16,9 @@ boundary through the shared nodes. Overwriting particle velocities after G2P ins
 leave the nodes free: neighbours would see a soft clamp, and the set's own ``grad v`` (hence F
 and stress) would come from the unconstrained grid.
 
-Two forms of the node tags:
-- `mark_nodes` / `apply_prescribed`: one int grid ``node_tag`` (-1 = free) for all sets;
-- `PrescribedSet.scatter` / `.apply`, used by `Simulation`: one float count field per set,
-  scattered like mass, so `Domain.sum_ghosts_to_owners` tells an owner that a node is clamped
-  even when the marked particles live on another rank (an int tag has no such sum).
+The node marks (`PrescribedSet.scatter` / `.apply`, used by `Simulation`): one float count
+field per set, scattered like mass, so `Domain.sum_ghosts_to_owners` tells an owner that a node
+is clamped even when the marked particles live on another rank (an int tag has no such sum).
 """
 
 from __future__ import annotations
@@ -53,87 +51,6 @@ def support_box(x, p, order, inv_dx, domain_lo, origin, n0, n1, n2):
         s2 = s
     return (max(c0, 0), min(c0 + s, n0), max(c1, 0), min(c1 + s, n1), max(c2, 0),
             min(c2 + s2, n2))
-
-
-@njit(cache=True)
-def mark_nodes_kernel(x, prescribed_index, origin, dx, domain_lo, order, node_tag):
-    """Raise ``node_tag`` (n0, n1, n2) to the set index of every marked particle whose support
-    holds the node; origin, domain_lo (3,) padded. Support nodes outside the block are
-    skipped (a rank's block always holds its own particles' support)."""
-    inv_dx = 1.0 / dx
-    n0, n1, n2 = node_tag.shape
-    for p in range(x.shape[0]):
-        tag = prescribed_index[p]
-        if tag < 0:
-            continue
-        a0, b0, a1, b1, a2, b2 = support_box(x, p, order, inv_dx, domain_lo, origin, n0, n1, n2)
-        for i in range(a0, b0):
-            for j in range(a1, b1):
-                for k in range(a2, b2):
-                    if node_tag[i, j, k] < tag:
-                        node_tag[i, j, k] = tag
-
-
-def mark_nodes(x: np.ndarray, prescribed_index: np.ndarray, origin, dx: float, domain_lo,
-               order: int, node_tag: np.ndarray) -> None:
-    """Tag every node in the B-spline support of a marked particle with its set index.
-
-    x (n, dim) positions; prescribed_index (n,) int set index or -1; node_tag (block) int,
-    filled with -1 by the owner before marking. Support (ARCHITECTURE.md): quadratic
-    ``base = floor(xi - 1/2)``, nodes ``base..base+2``; cubic ``base = floor(xi) - 1``, nodes
-    ``base..base+3``, ``xi = (x - domain_lo) / dx``. Where two sets' supports overlap the
-    higher index wins, whatever the particle order."""
-    dim = x.shape[1]
-    org = np.zeros(3, dtype=np.int64)
-    org[:dim] = origin
-    mark_nodes_kernel(x, prescribed_index, org, float(dx), vec3(domain_lo, dim), int(order),
-                      block3(node_tag, dim))
-
-
-@njit(cache=True)
-def apply_prescribed_kernel(velocity, node_tag, centres, velocities, omegas, origin, dx,
-                            domain_lo, t):
-    """Tagged nodes get their set's rigid velocity. velocity (n0, n1, n2, dim), node_tag
-    (n0, n1, n2); centres (initial), velocities, omegas (S, 3); origin, domain_lo (3,)."""
-    dim = velocity.shape[3]
-    n0, n1, n2 = node_tag.shape
-    for i in range(n0):
-        for j in range(n1):
-            for k in range(n2):
-                s = node_tag[i, j, k]
-                if s < 0:
-                    continue
-                x0 = domain_lo[0] + (origin[0] + i) * dx - (centres[s, 0] + velocities[s, 0] * t)
-                x1 = domain_lo[1] + (origin[1] + j) * dx - (centres[s, 1] + velocities[s, 1] * t)
-                x2 = 0.0
-                if dim == 3:
-                    x2 = domain_lo[2] + (origin[2] + k) * dx - (centres[s, 2]
-                                                                + velocities[s, 2] * t)
-                w0, w1, w2 = rigid_velocity(velocities[s], omegas[s], x0, x1, x2)
-                velocity[i, j, k, 0] = w0
-                velocity[i, j, k, 1] = w1
-                if dim == 3:
-                    velocity[i, j, k, 2] = w2
-
-
-def apply_prescribed(velocity: np.ndarray, node_tag: np.ndarray, centres: np.ndarray,
-                     velocities: np.ndarray, omegas: np.ndarray, origin, dx: float, domain_lo,
-                     t: float) -> None:
-    """Set every tagged node's velocity (block + (dim,), in place) to its set's rigid velocity
-    ``v_s + omega_s x (x_i - c_s(t))``, ``c_s(t) = centres[s] + v_s t``.
-
-    centres, velocities, omegas: (S, 3) (2D: z components 0, omega along z), e.g. from
-    `PrescribedSet.parameters`. ``t`` is the START of the step: the node velocity moves the
-    particles from where they are at t, so the rigid field must be centred where the set is
-    at t (centring at t + dt would add a spurious ``-dt omega x v`` every step)."""
-    dim = velocity.shape[-1]
-    org = np.zeros(3, dtype=np.int64)
-    org[:dim] = origin
-    apply_prescribed_kernel(block3(velocity, dim), block3(node_tag, dim),
-                            np.ascontiguousarray(centres, dtype=np.float64),
-                            np.ascontiguousarray(velocities, dtype=np.float64),
-                            np.ascontiguousarray(omegas, dtype=np.float64), org, float(dx),
-                            vec3(domain_lo, dim), float(t))
 
 
 @njit(cache=True)
@@ -206,22 +123,22 @@ class PrescribedSet:
                       block3(grid[self.mark_field], self.dim))
 
     def apply(self, velocity, origin, dx, domain_lo, t, dt, grid) -> None:
-        """Impose the rigid velocity on the nodes this set marked, centred at ``c(t)`` (the
-        start of the step; see `apply_prescribed`). Called after walls and colliders."""
+        """Impose the rigid velocity on the nodes this set marked, centred at ``c(t)``, ``t``
+        the START of the step: the node velocity moves the particles from where they are at
+        t, so the rigid field must be centred where the set is at t (centring at t + dt would
+        add a spurious ``-dt omega x v`` every step). Called after walls and colliders."""
         org = np.zeros(3, dtype=np.int64)
         org[: self.dim] = origin
         impose_rigid_velocity(block3(velocity, self.dim), block3(grid[self.mark_field], self.dim),
                               org, float(dx), vec3(domain_lo, self.dim), self.centre(t),
                               self.velocity, self.omega)
 
-
-def parameters(sets: list[PrescribedSet]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(centres, velocities, omegas), each (S, 3), in set-index order, for `apply_prescribed`."""
-    sets = sorted(sets, key=lambda s: s.index)
-    if not sets:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
-    return (np.array([s.centre0 for s in sets]), np.array([s.velocity for s in sets]),
-            np.array([s.omega for s in sets]))
+    def constrain(self, velocity, origin, dx, domain_lo, t, dt, grid, basis, count) -> None:
+        """Every node this set marked is fixed in all directions (the semi-implicit solve's
+        constraint mask; `apply` gives the values)."""
+        marked = block3(grid[self.mark_field], self.dim) > 0.0
+        count[marked] = self.dim
+        basis[marked] = np.eye(3)
 
 
 def mark_prescribed_particles(scene, particles) -> None:

@@ -13,13 +13,15 @@ import numpy as np
 from numba import njit
 
 from ._block import block3, mass3
-from .contact import CONDITIONS, project
+from .contact import CONDITIONS, NO_BASIS, NO_COUNT, constrain, project
 
 
 @njit(cache=True)
-def project_face(velocity, mass, use_mass, lo, hi, axis, normal_sign, condition, friction):
+def project_face(velocity, mass, use_mass, lo, hi, axis, normal_sign, condition, friction,
+                 record, basis, count):
     """Project the velocity of every node in the index box ``lo <= j < hi`` (block indices)
-    against one wall.
+    against one wall, or with ``record`` leave it and add the directions the wall fixes to
+    ``basis``/``count`` (`contact.constrain`).
 
     velocity (n0, n1, n2, dim) and mass (n0, n1, n2) are 3D views of the block (n2 = 1 in 2D);
     ``normal_sign`` is the wall's outward normal along ``axis`` (+1 on a lower face: the wall
@@ -34,6 +36,10 @@ def project_face(velocity, mass, use_mass, lo, hi, axis, normal_sign, condition,
                 if use_mass and mass[i, j, k] <= 0.0:
                     continue
                 v2 = velocity[i, j, k, 2] if dim == 3 else 0.0
+                if record:
+                    constrain(basis, count, i, j, k, velocity[i, j, k, 0], velocity[i, j, k, 1],
+                              v2, n0, n1, n2, condition, dim)
+                    continue
                 r0, r1, r2 = project(velocity[i, j, k, 0], velocity[i, j, k, 1], v2,
                                      n0, n1, n2, condition, friction)
                 velocity[i, j, k, 0] = r0
@@ -69,7 +75,22 @@ class Walls:
         if key != self._key:  # the block moved or grew: recompute which faces it touches
             self._key, self._boxes = key, self._face_boxes(*key)
         for lo, hi, axis, sign, condition, friction in self._boxes:
-            project_face(v3, m3, use_mass, lo, hi, axis, sign, condition, friction)
+            project_face(v3, m3, use_mass, lo, hi, axis, sign, condition, friction, False,
+                         NO_BASIS, NO_COUNT)
+
+    def constrain(self, velocity: np.ndarray, origin, dx: float, domain_lo, t: float,
+                  dt: float, mass: np.ndarray, basis: np.ndarray, count: np.ndarray) -> None:
+        """Add the directions the walls fix at the trial ``velocity`` to ``basis`` (block3 +
+        (3, 3)) and ``count`` (block3), for the semi-implicit solve's constraint mask."""
+        dim = velocity.shape[-1]
+        v3 = block3(velocity, dim)
+        m3, use_mass = mass3(mass, dim)
+        key = (tuple(int(o) for o in origin), v3.shape[:3])
+        if key != self._key:
+            self._key, self._boxes = key, self._face_boxes(*key)
+        for lo, hi, axis, sign, condition, friction in self._boxes:
+            project_face(v3, m3, use_mass, lo, hi, axis, sign, condition, friction, True,
+                         basis, count)
 
     def _face_boxes(self, origin, shape) -> list[tuple]:
         """Per face the block reaches: (lo, hi) block-index box of the nodes on or beyond

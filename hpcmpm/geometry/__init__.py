@@ -23,6 +23,7 @@ is the sum of per-chunk sums over the lattice points, added in chunk order on ev
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,9 +93,35 @@ class BodyLattice:
         return x
 
 
+# Beyond these a scene is a typo, not a run (2**31 particles along a line; 2**53, where the
+# float64 counts and estimates stop being exact), and the lattice axes alone might not fit in
+# memory: `body_lattice` refuses them before allocating anything.
+MAX_AXIS_POINTS = 2**31
+MAX_LATTICE_POINTS = 2**53
+
+
+def lattice_shape(lower, upper, domain_lo, spacing: float) -> list[float]:
+    """Points per axis of `lattice_axes`, computed in floats (inf when they overflow), without
+    allocating anything."""
+    shape = []
+    for lo, hi, origin in zip(lower, upper, domain_lo):
+        a, b = (lo - origin) / spacing - 0.5, (hi - origin) / spacing - 0.5
+        shape.append(max(math.ceil(b) - math.ceil(a), 0) if math.isfinite(a) and
+                     math.isfinite(b) else math.inf)
+    return shape
+
+
 def body_lattice(body, scene: Scene) -> BodyLattice:
     lower, upper = body_bounds(body.shape, body.params, scene.dim)
     spacing = scene.dx / scene.particles_per_cell
+    shape = lattice_shape(lower, upper, scene.domain_lo, spacing)
+    total = math.prod(float(n) for n in shape)
+    if max(shape) > MAX_AXIS_POINTS or total > MAX_LATTICE_POINTS:
+        raise SceneError(
+            f"{scene.path}: simulation.particles_per_cell: bodies[{scene.bodies.index(body)}] "
+            f"would take {total:.3g} lattice points ({float(max(shape)):.3g} along one axis) "
+            f"at the particle spacing dx / particles_per_cell = {spacing:g}, more than any "
+            f"run can hold; use a larger simulation.dx or fewer particles_per_cell")
     return BodyLattice(lattice_axes(lower, upper, scene.domain_lo, spacing),
                        solid=body.shape == "box")
 
@@ -184,10 +211,11 @@ def estimate_body_counts(scene: Scene) -> tuple[list[float], bool]:
         if body.shape == "sphere":
             volume = np.pi * p["radius"] ** 2 if scene.dim == 2 else \
                 4.0 / 3.0 * np.pi * p["radius"] ** 3
-            out.append(min(volume / spacing ** scene.dim, lat.size))
+            out.append(min(volume / np.float64(spacing) ** scene.dim, lat.size))
             exact = False
         elif body.shape == "cylinder":
-            out.append(min(np.pi * p["radius"] ** 2 * p["length"] / spacing ** 3, lat.size))
+            out.append(min(np.pi * p["radius"] ** 2 * p["length"] / np.float64(spacing) ** 3,
+                           lat.size))
             exact = False
         else:
             out.append(float(lat.size))

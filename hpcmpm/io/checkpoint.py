@@ -139,7 +139,7 @@ def write_checkpoint(path_dir, domain, particles, meta: dict, keep: int = 2,
         else:
             def sink(first: int, piece: dict[str, np.ndarray]) -> None:
                 for name, arr in piece.items():
-                    dsets[name][first:first + len(arr)] = arr
+                    out.write_rows(dsets[name], first, arr)
 
             send_rows_in_turn(domain, rows, chunk_bytes, sink)
     except (OSError, ValueError, RuntimeError) as exc:
@@ -182,13 +182,15 @@ def read_checkpoint(path, domain) -> tuple[dict[str, np.ndarray], dict[str, Any]
     expected: dict[str, str] = {}
     try:
         fields, meta, partials, expected = _read_share(path, domain.rank, domain.size)
+    except NotACheckpoint as exc:
+        error = str(exc)  # complete: it names the checkpoint to use instead
     except CheckpointError as exc:
-        error = str(exc)
+        error = _with_previous(path, str(exc))
     except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
-        error = f"{path.name}: cannot be read ({_one_line(exc)})"
+        error = _with_previous(path, f"{path.name}: cannot be read ({_one_line(exc)})")
     errors = [e for e in domain.allgather(error) if e]
     if errors:
-        raise CheckpointError(_with_previous(path, errors[0]))
+        raise CheckpointError(errors[0])
     gathered = domain.allgather(partials)
     for name, want in expected.items():
         got = cks.format_checksum(cks.combine(p[name] for p in gathered))
@@ -212,7 +214,10 @@ def _read_share(path: Path, rank: int, size: int):
         raise CheckpointError(f"{path.name}: not a readable HDF5 file ({_one_line(exc)})") \
             from None
     with h5:
-        if h5.attrs.get("kind") != "checkpoint":
+        kind = h5.attrs.get("kind")
+        if kind == "frame":
+            raise NotACheckpoint(_checkpoint_for_frame(path, int(h5.attrs.get("step", 0))))
+        if kind != "checkpoint":
             raise CheckpointError(f"{path.name}: not an hpcmpm checkpoint")
         n_total = int(h5.attrs["n_particles"])
         counts = _verified(h5, "layout/rank_counts")
@@ -251,10 +256,32 @@ def _stored_checksum(path: Path, dset: h5py.Dataset) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
+class NotACheckpoint(CheckpointError):
+    """A frame given where a checkpoint is needed; the message names the checkpoint to use."""
+
+
+def _checkpoint_for_frame(path: Path, step: int) -> str:
+    """What to restart from instead of frame ``path`` (of step ``step``): the newest
+    checkpoint of its folder at or before that step."""
+    message = f"{path.name}: is a frame, not a checkpoint (restart reads ckpt_*.h5 files)"
+    found = list_checkpoints(path.parent)
+    before = [p for s, p in found if s <= step]
+    if before:
+        return f"{message}; the newest checkpoint at or before its step {step} is {before[-1]}"
+    if found:
+        return (f"{message}; {path.parent} has no checkpoint at or before its step {step} "
+                f"(the first is {found[0][1].name})")
+    return f"{message}; {path.parent} holds no checkpoint"
+
+
 def _with_previous(path: Path, message: str) -> str:
     step = CKPT_PATTERN.match(path.name)
-    earlier = [p for s, p in list_checkpoints(path.parent)
-               if step is None or s < int(step.group(1))]
+    if step is None:  # not named like a checkpoint: "previous" means nothing
+        found = list_checkpoints(path.parent)
+        if found:
+            return f"{message}; the newest checkpoint in {path.parent} is {found[-1][1].name}"
+        return f"{message}; there is no checkpoint in {path.parent}"
+    earlier = [p for s, p in list_checkpoints(path.parent) if s < int(step.group(1))]
     if earlier:
         return f"{message}; the previous checkpoint {earlier[-1].name} may still be usable"
     return f"{message}; there is no earlier checkpoint in {path.parent}"

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..errors import FrameError
 from .shared import DEFAULT_CHUNK_BYTES, SharedFile, attr_value, gather_by_id, resolve_mode
 from .xdmf import FrameCatalog
 
@@ -40,7 +41,8 @@ class FrameWriter:
     dim : 2 or 3.
     fields : extra particle fields to write besides the core ones (skipped when the
         ParticleSet has no such field).
-    provenance : ``restart_chain`` (list of paths), optionally ``hpcmpm_version``.
+    provenance : ``restart_chain`` (list of paths: the scene file, then each checkpoint the run
+        was restarted from), optionally ``scene_path`` and ``hpcmpm_version``.
     first_frame : number of the first frame this writer writes (a restart continues the count).
     mode : ``"auto"`` (mpio when h5py has MPI and size > 1), ``"serial"`` or ``"mpio"``;
         ``None`` reads ``$HPCMPM_IO_MODE``.
@@ -83,6 +85,7 @@ class FrameWriter:
             "frame_index": self.frame_index, "n_particles": int(n_total),
             "hpcmpm_version": self.provenance.get("hpcmpm_version", __version__),
             "n_ranks": self.domain.size, "io_mode": self.mode, "scene": self.scene_text,
+            "scene_path": str(self.provenance.get("scene_path", "")),
             "restart_chain": attr_value(list(self.provenance.get("restart_chain", []))),
         }
         for key, value in (extra_attrs or {}).items():
@@ -100,7 +103,10 @@ class FrameWriter:
         except BaseException:
             out.abandon()
             raise
-        out.commit()
+        try:
+            out.commit()  # a write failure on any rank is raised here on every rank
+        except OSError as exc:
+            raise FrameError(f"frame {path.name} not written: {exc}") from None
         if self.catalog is not None:
             shapes = {name: ((n_total,) + arr.shape[1:], arr.dtype.str)
                       for name, arr in {"id": ids, **rows}.items()}
@@ -142,7 +148,7 @@ class FrameWriter:
             # collective write that the other ranks join with an empty selection.
             if out.mode == "serial":
                 for name, arr in piece.items() if piece is not None else ():
-                    dsets[name][first_row:first_row + len(arr)] = arr
+                    out.write_rows(dsets[name], first_row, arr)
                 return
             piece = empty if piece is None else piece
             count = len(piece["id"])

@@ -33,6 +33,17 @@ def scene_name(scene_text: str, scene_path: str | None = None) -> str:
     return "(unnamed)"
 
 
+def provenance(chain: list[str]) -> str:
+    """The run's history from its restart chain (the scene file, then each checkpoint it was
+    restarted from): "run of S, not restarted" or "run of S, restarted from A, then B"."""
+    if not chain:
+        return "unknown"
+    first, restarts = chain[0], chain[1:]
+    if not restarts:
+        return f"run of {first}, not restarted"
+    return f"run of {first}, restarted from {', then '.join(restarts)}"
+
+
 def _text(value: Any) -> Any:
     return value.decode() if isinstance(value, bytes) else value
 
@@ -53,10 +64,15 @@ def describe(path) -> list[str]:
         if kind not in ("frame", "checkpoint") or "particles" not in h5:
             raise OutputFileError(f"{path}: not an hpcmpm frame or checkpoint")
         meta = json.loads(attrs.get("meta", "{}")) if kind == "checkpoint" else {}
+        chain = json.loads(attrs.get("restart_chain", "[]") or "[]")
+        # Where the scene came from: a checkpoint's meta, a frame's attribute, or (frames
+        # written before they carried it) the scene file that starts the provenance chain.
+        scene_path = meta.get("scene_path") or attrs.get("scene_path") or \
+            next((c for c in chain[:1] if c.endswith(".toml")), None)
         lines = [
             f"file:        {path}",
             f"kind:        {kind}",
-            f"scene:       {scene_name(attrs.get('scene', ''), meta.get('scene_path'))}",
+            f"scene:       {scene_name(attrs.get('scene', ''), scene_path)}",
             f"time:        {float(attrs.get('time', 0.0)):.9g}",
             f"step:        {int(attrs.get('step', 0))}",
             f"dim:         {int(attrs.get('dim', 0))}",
@@ -65,9 +81,8 @@ def describe(path) -> list[str]:
             f" mode)",
             f"version:     hpcmpm {attrs.get('hpcmpm_version', '?')}",
         ]
-        chain = json.loads(attrs.get("restart_chain", "[]") or "[]")
         if chain:
-            lines.append(f"restarts:    {' -> '.join(chain)}")
+            lines.append(f"provenance:  {provenance(chain)}")
         if kind == "frame":
             lines.append(f"frame:       {int(attrs.get('frame_index', 0))}")
         lines.append("datasets:")

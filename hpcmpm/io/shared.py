@@ -123,6 +123,10 @@ class SharedFile:
         self.mode = mode
         self.fsync = fsync
         self.h5: h5py.File | None = None
+        # The first failure on this rank. A failing rank does not leave the collective protocol
+        # (it joins the remaining writes with nothing to write); `commit` then raises the
+        # error on every rank, so no rank is left waiting and no abort hook is needed.
+        self.error: str | None = None
         if mode == "mpio":
             self.h5 = h5py.File(self.tmp, "w", driver="mpio", comm=domain.comm, libver=LIBVER)
         elif domain.rank == 0:
@@ -133,26 +137,61 @@ class SharedFile:
         """Whether this rank holds the open file."""
         return self.h5 is not None
 
+    def _serial_guard(self, what: str, action, *args):
+        """Serial mode: run ``action`` on the rank that holds the file, recording a failure
+        (and skipping everything after one) so the other ranks are not left waiting. mpio mode:
+        these are collective calls that fail on every rank alike, so they raise as usual."""
+        if self.mode != "serial":
+            return action(*args)
+        if self.error is not None:
+            return None
+        try:
+            return action(*args)
+        except Exception as exc:  # noqa: BLE001 - reported on every rank by commit
+            self.fail(f"{self.tmp}: cannot write {what}: {_one_line(exc)}")
+            return None
+
     def set_attrs(self, attrs: dict[str, Any], group: str = "/") -> None:
         if self.h5 is None:
             return
-        target = self.h5[group] if group in self.h5 else self.h5.require_group(group)
-        for key, value in attrs.items():
-            target.attrs[key] = attr_value(value)
+
+        def write() -> None:
+            target = self.h5[group] if group in self.h5 else self.h5.require_group(group)
+            for key, value in attrs.items():
+                target.attrs[key] = attr_value(value)
+
+        self._serial_guard(f"the attributes of {group}", write)
 
     def create(self, name: str, shape: tuple[int, ...], dtype) -> h5py.Dataset | None:
         """A contiguous dataset (no filters: parallel HDF5 writes filtered data only
         collectively and slower; particle data compresses poorly anyway)."""
         if self.h5 is None:
             return None
-        return self.h5.create_dataset(name, shape=shape, dtype=np.dtype(dtype))
+        return self._serial_guard(name, lambda: self.h5.create_dataset(
+            name, shape=shape, dtype=np.dtype(dtype)))
 
     def write_small(self, name: str, array: np.ndarray) -> None:
         """A dataset rank 0 writes alone (metadata arrays); every rank calls this."""
         array = np.asarray(array)
         dset = self.create(name, array.shape, array.dtype)
         if dset is not None and self.domain.rank == 0 and array.size:
-            dset[...] = array
+            self._serial_guard(name, dset.__setitem__, Ellipsis, array)
+
+    def fail(self, message: str) -> None:
+        """Record a failure on this rank (the first one is kept); `commit` reports it."""
+        if self.error is None:
+            self.error = message
+
+    def write_rows(self, dset: h5py.Dataset, first: int, data: np.ndarray) -> None:
+        """Serial mode (the rank that holds the file): ``data`` into rows ``first...``; a
+        failure is recorded, and later pieces are skipped, so the other ranks still hand over
+        theirs and the protocol ends normally."""
+        if self.error is not None or dset is None:
+            return
+        try:
+            dset[first:first + len(data)] = data
+        except Exception as exc:  # noqa: BLE001 - reported on every rank by commit
+            self.fail(f"{self.tmp}: cannot write {dset.name}: {_one_line(exc)}")
 
     def write_runs(self, dset: h5py.Dataset, starts: np.ndarray, counts: np.ndarray,
                    data: np.ndarray) -> None:
@@ -165,16 +204,32 @@ class SharedFile:
         write itself is fast, so many small unions beat one big one."""
         n_calls = self.domain.max(-(-len(starts) // RUNS_PER_WRITE))
         ends = np.cumsum(counts)
-        data = np.ascontiguousarray(data, dtype=dset.dtype)
+        try:
+            data = np.ascontiguousarray(data, dtype=dset.dtype)
+        except Exception as exc:  # noqa: BLE001 - this rank joins with empty selections
+            self.fail(f"{self.tmp}: cannot write {dset.name}: {_one_line(exc)}")
         for call in range(n_calls):
             lo, hi = call * RUNS_PER_WRITE, min((call + 1) * RUNS_PER_WRITE, len(starts))
             first = int(ends[lo - 1]) if 0 < lo <= len(starts) else 0
             last = int(ends[hi - 1]) if hi > lo else first
-            self._write_selection(dset, starts[lo:hi], counts[lo:hi], data[first:last])
+            selection = None
+            if self.error is None:
+                try:
+                    selection = self._selection(dset, starts[lo:hi], counts[lo:hi],
+                                                data[first:last])
+                except Exception as exc:  # noqa: BLE001 - reported on every rank by commit
+                    self.fail(f"{self.tmp}: cannot write {dset.name}: {_one_line(exc)}")
+            # A failed rank still takes part, with nothing to write, so the collective ends.
+            selection = selection or self._nothing(dset)
+            try:
+                self._write(dset, *selection)
+            except Exception as exc:  # noqa: BLE001 - reported on every rank by commit
+                self.fail(f"{self.tmp}: cannot write {dset.name}: {_one_line(exc)}")
 
     @staticmethod
-    def _write_selection(dset: h5py.Dataset, starts, counts, data: np.ndarray) -> None:
-        from h5py import h5fd, h5p, h5s
+    def _selection(dset: h5py.Dataset, starts, counts, data: np.ndarray):
+        """(memory space, file space, data) of one collective write: local work only."""
+        from h5py import h5s
 
         trailing = dset.shape[1:]
         fspace = dset.id.get_space()
@@ -183,31 +238,53 @@ class SharedFile:
             fspace.select_hyperslab((start,) + (0,) * len(trailing), (count,) + trailing,
                                     op=h5s.SELECT_OR)
         if len(data) == 0:
-            data = np.zeros((1,) + trailing, dtype=dset.dtype)
-            mspace = h5s.create_simple(data.shape)
-            mspace.select_none()
-        else:
-            mspace = h5s.create_simple(data.shape)
+            return SharedFile._nothing(dset)
+        return h5s.create_simple(data.shape), fspace, data
+
+    @staticmethod
+    def _nothing(dset: h5py.Dataset):
+        """The empty selection a rank joins a collective write with."""
+        from h5py import h5s
+
+        fspace = dset.id.get_space()
+        fspace.select_none()
+        data = np.zeros((1,) + dset.shape[1:], dtype=dset.dtype)
+        mspace = h5s.create_simple(data.shape)
+        mspace.select_none()
+        return mspace, fspace, data
+
+    @staticmethod
+    def _write(dset: h5py.Dataset, mspace, fspace, data: np.ndarray) -> None:
+        """The collective write itself (every rank calls it)."""
+        from h5py import h5fd, h5p
+
         dxpl = h5p.create(h5p.DATASET_XFER)
         dxpl.set_dxpl_mpio(h5fd.MPIO_COLLECTIVE)
         dset.id.write(mspace, fspace, data, dxpl=dxpl)
 
     def commit(self) -> Path:
         """Close, (fsync,) rename ``NAME.tmp`` to ``NAME`` on rank 0; every rank returns once
-        the final file exists. An error on rank 0 is raised on every rank."""
-        error = None
+        the final file exists. A failure on any rank (recorded by `fail` or met here) is raised
+        as the same `OSError` on every rank, and the temporary file is removed."""
+        error = self.error
         if self.h5 is not None:
             try:
                 self.h5.close()  # collective in mpio mode
             except Exception as exc:  # noqa: BLE001 - reported on every rank below
-                error = f"{self.tmp}: cannot finish the file: {exc}"
-        if self.domain.rank == 0 and error is None:
+                error = error or f"{self.tmp}: cannot finish the file: {_one_line(exc)}"
+            self.h5 = None
+        # Whether every rank wrote its part, decided together before the rename.
+        errors = [e for e in self.domain.allgather(error) if e]
+        if self.domain.rank == 0 and not errors:
             try:
                 replace_atomically(self.tmp, self.path, self.fsync)
             except OSError as exc:
                 error = f"{self.path}: cannot rename {self.tmp.name} into place: {exc}"
-        errors = [e for e in self.domain.allgather(error) if e]
+            errors = [error] if error else []
+        errors = self.domain.bcast(errors)
         if errors:
+            if self.domain.rank == 0:
+                self.tmp.unlink(missing_ok=True)
             raise OSError(errors[0])
         return self.path
 
@@ -286,3 +363,7 @@ def gather_by_id(domain, ids: np.ndarray, rows: dict[str, np.ndarray], chunk_byt
             written += len(order)
         else:
             sink(0, None)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__

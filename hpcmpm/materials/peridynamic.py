@@ -29,6 +29,7 @@ from ..pd.families import DEFAULT_HORIZON, INFLUENCES, half_bonds_per_particle
 from ..pd import moduli
 from ..state import SCALAR, VECTOR, FieldSpec
 from .base import POISSON, YOUNG, ElasticMaterial, Material, Param, choice, resolve_params
+from .pd_models import EXTRA_PARAMETERS, check_chapter5
 
 
 def _point(x) -> str:
@@ -61,7 +62,8 @@ class Peridynamic(Material):
 
     name = "peridynamic"
     parameters = {
-        "model": choice(("pmb", "lps", "correspondence"), "pmb", "bond model"),
+        "model": choice(("pmb", "lps", "correspondence", "bond_energy", "viscoelastic_lps"),
+                        "pmb", "bond model"),
         "integration": choice(("pd", "grid"), "pd",
                               "pd: own bond forces (003 Alg. 2); grid: integral-based MPM"),
         "E": YOUNG,
@@ -84,6 +86,8 @@ class Peridynamic(Material):
         "stress_material": Param(-math.inf, math.inf, False, None, check=_is_name,
                                  doc="correspondence: the material whose stress it uses"),
         "skin": Param(0.0, math.inf, False, 1.0, doc="PD halo skin in particle spacings"),
+        # Models of 003 ch. 5: materials/pd_models.py.
+        **EXTRA_PARAMETERS,
         "precracks": Param(-math.inf, math.inf, False, None, check=_precracks,
                            doc="segments (2D) or planar polygons (3D) no bond crosses"),
     }
@@ -100,6 +104,8 @@ class Peridynamic(Material):
         prm = self.params
         self.on_grid = prm["integration"] == "grid"
         E, nu, plane = prm["E"], prm["nu"], prm["plane"]
+        # The PMB Poisson ratio and the stress material: spec_problems (scene validator).
+        check_chapter5(prm, f"material {spec.name!r} ({self.name})")   # pd_models.py
         self.bulk = moduli.bulk_modulus(dim, E, nu, plane)
         self.mu = moduli.shear_modulus(E, nu)
         # Lamé pair of the same (3D or plane strain) solid, for the wave speed.
@@ -109,7 +115,7 @@ class Peridynamic(Material):
         self.delta = math.nan
 
     @classmethod
-    def scene_problems(cls, spec, scene) -> list[str]:
+    def spec_problems(cls, spec, scene) -> list[str]:
         """The issue's bad input that needs the scene (the scene validator reports each with
         its TOML path): a PMB Poisson ratio the dimension cannot represent, a horizon below
         one particle spacing, a pre-crack of the wrong dimension or outside the domain, a
@@ -186,6 +192,9 @@ class Peridynamic(Material):
         P-wave modulus."""
         if self.params["model"] == "pmb":
             return self.micromodulus()
+        if self.params["model"] == "bond_energy":      # 003 ch. 5: materials/pd_models.py
+            from .pd_models import bond_energy_time_step_c
+            return bond_energy_time_step_c(self)
         return moduli.equivalent_micromodulus(self.dim, self.bulk, self.mu, self.delta,
                                               self.params["influence"])
 
@@ -207,6 +216,9 @@ class Peridynamic(Material):
             return PMB(self.micromodulus(), s0)
         if prm["model"] == "lps":
             return LPS(self.bulk, self.mu, s0, c_dt)
+        if prm["model"] in ("bond_energy", "viscoelastic_lps"):   # materials/pd_models.py
+            from .pd_models import make_chapter5_model
+            return make_chapter5_model(self, s0, c_dt)
         other = self.stress_model
 
         def stress(F, tau):

@@ -5,5 +5,6 @@ The only package that imports mpi4py; everything else talks to `Domain` verbs.
 
 from .comm import Communicator
 from .domain import Domain
+from .launch import check_launch
 
-__all__ = ["Communicator", "Domain"]
+__all__ = ["Communicator", "Domain", "check_launch"]

@@ -506,6 +506,27 @@ class Domain(Communicator):
         s = self.owned_slices(grid)
         return float(self.sum(float(np.vdot(grid[a][s], grid[b][s]))))
 
+    def dots(self, grid, pairs, weights=None) -> np.ndarray:
+        """Several dot products of grid fields in one allreduce (the conjugate gradient's
+        reductions of one iteration): ``out[k] = sum_i m_i^weights[k] a_k(i) . b_k(i)`` over
+        this rank's owned nodes that have mass, summed over ranks, for ``pairs[k] = (a, b)``
+        field names (scalar or vector); ``weights[k]`` is 0 (default), 1 or 2. No grid vector
+        leaves its rank: each rank sends one partial sum per pair."""
+        from ..kernels.implicit import owned_dot
+
+        s = self.owned_slices(grid)
+        lo = np.zeros(3, dtype=np.int64)
+        hi = np.ones(3, dtype=np.int64)
+        lo[: self.dim] = [sl.start for sl in s]
+        hi[: self.dim] = [sl.stop for sl in s]
+        shape3 = tuple(grid.shape) + (1,) * (3 - self.dim)
+        mass = grid["mass"].reshape(shape3)
+        weights = weights or (0,) * len(pairs)
+        local = np.array([owned_dot(grid[a].reshape(shape3 + (-1,)),
+                                    grid[b].reshape(shape3 + (-1,)), mass, int(w), lo, hi)
+                          for (a, b), w in zip(pairs, weights)])
+        return self._reduce_sum(local)
+
     # -- failure ------------------------------------------------------------------------------
     def install_abort_hook(self) -> None:
         """Make an uncaught exception on any rank abort all ranks (after printing it), instead

@@ -32,6 +32,7 @@ import numpy as np
 from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
+from .boundary import impose_prescribed_velocity
 from .contact import ParticleColliders, ParticleWalls
 from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
@@ -270,6 +271,11 @@ class CheckpointedBonds:
     beside the particle checkpoint, written before it (a particle checkpoint that exists has
     its bonds), read back on any rank count and routed to the particles' new owners."""
 
+    def checkpoint_ids(self) -> np.ndarray:
+        """Ids of the rows that own bond segments, in row order (SPB-MPM: its PD particles)."""
+        p = self.sim.particles
+        return p["id"][p["group"] == self.group].copy()
+
     def write_checkpoint(self, out_dir, step: int, keep: int) -> None:
         from ..io.checkpoint import write_checkpoint
 
@@ -293,10 +299,9 @@ class CheckpointedBonds:
                                      / path.name, self.sim.domain)
         if not meta.get("initialized", False):
             return
-        p = self.sim.particles
         # Rows of this material in their current order, without sorting (a sort now would
         # change a grid scene's summation order against the uninterrupted run).
-        ids = p["id"][p["group"] == self.group].copy()
+        ids = self.checkpoint_ids()
         rows = route_half_bonds(self.sim.domain, rows, ids)
         row_of = {int(i): k for k, i in enumerate(ids)}
         owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
@@ -323,6 +328,7 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
             start, stop = self.prepare()
+            self.model.dt = dt      # rate models (viscoelastic_lps) integrate over the step
             f = self.compute_forces(start, stop)
             p = sim.particles
             v = p["v"][start:stop]
@@ -330,6 +336,7 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
             self.walls.apply(x, v, dt)
             self.colliders.apply(x, v, sim.time, dt)
+            impose_prescribed_velocity(sim, start, stop, v)     # pd/boundary.py (wins)
             x += dt * v
             self.write_damage(start, stop)
 
@@ -339,11 +346,15 @@ class IntegralMPMExtension(CheckpointedBonds, PDExtension):
 
     def particle_forces(self, sim, dt: float):
         start, stop = self.prepare()
+        self.model.dt = dt          # rate models (viscoelastic_lps) integrate over the step
         f = self.compute_forces(start, stop)
         self.write_damage(start, stop)
         yield start, stop, f
 
 
 def make_extension(sim, material) -> PDExtension:
+    if material.params.get("crack_threshold") is not None:     # 003 §5.4: crack_planes.py
+        from .crack_planes import make_crack_plane_extension
+        return make_crack_plane_extension(sim, material)
     cls = IntegralMPMExtension if material.on_grid else PDBodyExtension
     return cls(sim, material)

@@ -18,8 +18,9 @@ from __future__ import annotations
 
 from ..errors import SceneError
 from .explicit import ExplicitIntegrator
+from .semi_implicit import SemiImplicitIntegrator
 
-INTEGRATORS = {cls.name: cls for cls in (ExplicitIntegrator,)}
+INTEGRATORS = {cls.name: cls for cls in (ExplicitIntegrator, SemiImplicitIntegrator)}
 
 
 def make_integrator(name: str, sim):
@@ -30,4 +31,4 @@ def make_integrator(name: str, sim):
     return cls(sim)
 
 
-__all__ = ["INTEGRATORS", "ExplicitIntegrator", "make_integrator"]
+__all__ = ["INTEGRATORS", "ExplicitIntegrator", "SemiImplicitIntegrator", "make_integrator"]

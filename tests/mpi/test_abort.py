@@ -2,12 +2,12 @@
 (`Domain.install_abort_hook`), instead of leaving the others in a collective forever."""
 
 import os
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
 import pytest
+from launch import run_in_group
 
 SCRIPT = textwrap.dedent("""
     import numpy as np
@@ -27,8 +27,7 @@ def test_exception_on_one_rank_aborts_all():
     mpiexec = Path(sys.executable).parent / "mpiexec"
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=str(root), NUMBA_NUM_THREADS="1")
-    proc = subprocess.run([str(mpiexec if mpiexec.exists() else "mpiexec"), "-n", "2",
-                           sys.executable, "-c", SCRIPT], cwd=root, env=env, timeout=60,
-                          capture_output=True, text=True)
+    proc = run_in_group([str(mpiexec if mpiexec.exists() else "mpiexec"), "-n", "2",
+                         sys.executable, "-c", SCRIPT], cwd=root, env=env, timeout=60)
     assert proc.returncode != 0
     assert "rank 1 gives up" in proc.stderr

@@ -131,3 +131,36 @@ def test_mpio_checkpoint_equals_serial_checkpoint(comm, shared_dir):
                 assert a["particles"][name].attrs["checksum"] == \
                     b["particles"][name].attrs["checksum"]
     comm.barrier()
+
+
+@pytest.mark.parametrize("mode", ["serial", pytest.param("mpio", marks=needs_mpio)])
+@pytest.mark.parametrize("what", ["frame", "checkpoint"])
+def test_a_write_failure_on_one_rank_is_raised_on_every_rank(comm, shared_dir, monkeypatch,
+                                                             mode, what):
+    """No abort hook here: the failing rank keeps to the protocol and the file's commit raises
+    the same error everywhere. Without that, the other ranks would wait in a collective until
+    the harness killed the launch."""
+    import hpcmpm.io.shared as shared
+    from hpcmpm.errors import CheckpointError, FrameError
+
+    # Serial mode: rank 0 writes everything; mpio: the last rank's share fails.
+    failing = 0 if mode == "serial" else comm.size - 1
+    if comm.rank == failing:
+        def no_space(*args, **kwargs):
+            raise OSError("No space left on device (injected)")
+
+        if mode == "serial":
+            monkeypatch.setattr(h5py.Dataset, "__setitem__", no_space)
+        else:
+            monkeypatch.setattr(shared.SharedFile, "_selection", staticmethod(no_space))
+    folder = shared_dir / f"{what}-{mode}"
+    with pytest.raises(FrameError if what == "frame" else CheckpointError,
+                       match="No space left on device") as info:
+        if what == "frame":
+            write_frame(comm, folder, mode, 3, gaps=True, empty_last=False)
+        else:
+            p = local_particles(comm, 3, empty_last=False)
+            write_checkpoint(folder, comm, p, {"step": 3, "time": 0.1}, mode=mode)
+    assert "\n" not in str(info.value)
+    comm.barrier()
+    assert sorted(f.name for f in folder.iterdir() if f.suffix in (".h5", ".tmp")) == []

@@ -15,6 +15,7 @@ import pytest
 from hpcmpm.errors import EXIT_CHECKPOINTED_ON_SIGNAL
 from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
+from launch import kill_group, run_in_group
 
 BIN = Path(sys.executable).parent
 DT = 5e-3
@@ -24,7 +25,7 @@ FIXED = ["--set", f"simulation.dt={DT}", "--set", f"output.every={50 * DT}"]
 
 def hpcmpm(ranks: int, *args, timeout=300):
     cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=ENV)
+    proc = run_in_group(cmd, timeout=timeout, env=ENV)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc
 
@@ -55,6 +56,8 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path, uninterrupted, first
     got, attrs = final_frame(tmp_path)
     ref, ref_attrs = uninterrupted[first]
     assert attrs["step"] == ref_attrs["step"] == 200
+    # Each launch was one world of the asked size (not N separate 1-rank runs).
+    assert (attrs["n_ranks"], ref_attrs["n_ranks"]) == (second, first)
     assert attrs["time"] == ref_attrs["time"]
     assert np.array_equal(got["id"], ref["id"])
     frames = sorted(tmp_path.glob("frame_*.h5"))
@@ -68,26 +71,34 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path, uninterrupted, first
             assert err < 1e-10, f"{name}: {err:.2e}"
 
 
-@pytest.mark.parametrize("ranks", [1, 2])
-def test_sigterm_writes_a_checkpoint_that_restarts(tmp_path, ranks):
+@pytest.mark.parametrize("ranks,sig", [(1, signal.SIGTERM), (2, signal.SIGUSR1)])
+def test_signal_writes_a_checkpoint_that_restarts(tmp_path, ranks, sig):
     cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), "run",
            "inputs/disks_2d.toml", "--out", str(tmp_path), "--quiet", "--end-time", "1000"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=ENV)
-    deadline = time.time() + 120
-    while not list(tmp_path.glob("frame_000001.h5")) and time.time() < deadline:
-        time.sleep(0.2)  # wait until the run is well under way
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
+                            env=ENV, start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        while not list(tmp_path.glob("frame_000001.h5")) and time.time() < deadline:
+            time.sleep(0.2)  # wait until the run is well under way
+        proc.send_signal(sig)  # mpiexec forwards it to every rank
+        _, err = proc.communicate(timeout=120)
+    finally:
+        kill_group(proc)
     assert proc.returncode == EXIT_CHECKPOINTED_ON_SIGNAL, err[-2000:]
     ckpt = latest_checkpoint(tmp_path)
     assert ckpt is not None
-    assert "hpcmpm restart" in err
+    # An expected event, told once per job (rank 0) under its own label, naming the signal.
+    told = [l for l in err.splitlines() if l.startswith("hpcmpm:")]
+    assert len(told) == 1 and told[0].startswith(
+        f"hpcmpm: stopped: {sig.name} received: checkpoint written at step"), err[-2000:]
+    assert f"hpcmpm restart {ckpt}" in told[0]
     with h5py.File(ckpt) as f:
         t_ckpt, step_ckpt = float(f.attrs["time"]), int(f.attrs["step"])
     assert 0 < t_ckpt < 1000
     hpcmpm(ranks, "restart", str(ckpt), "--end-time", str(t_ckpt + 0.1), "--quiet")
     _, attrs = final_frame(tmp_path)
+    assert attrs["n_ranks"] == ranks
     assert attrs["time"] == pytest.approx(t_ckpt + 0.1)
     assert attrs["step"] > step_ckpt
 

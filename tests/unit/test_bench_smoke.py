@@ -8,11 +8,11 @@ import json
 import math
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from launch import run_in_group
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = REPO / "scripts"
@@ -23,8 +23,8 @@ NO_TAICHI = "taichi not installed (pip install -e '.[bench]')"
 def run_script(name: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
     env.setdefault("NUMBA_CACHE_DIR", str(REPO / ".numba_cache"))
-    result = subprocess.run([sys.executable, str(SCRIPTS / name), *args], cwd=REPO, env=env,
-                            capture_output=True, text=True, timeout=timeout)
+    result = run_in_group([sys.executable, str(SCRIPTS / name), *args], cwd=REPO, env=env,
+                          timeout=timeout)
     assert result.returncode == 0, f"{name} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     return result
 
@@ -53,18 +53,22 @@ def load_finite(path: Path) -> dict:
 
 @pytest.mark.skipif(not HAS_TAICHI, reason=NO_TAICHI)
 def test_peer_smoke(tmp_path):
-    run_script("bench_peer.py", "--smoke", "--reps", "2", "--steps", "3", "--out", str(tmp_path))
+    # What one launch does, all scenes in this one process (the separate launches and their
+    # ranges are bench_common.run_launches, exercised by test_bench_command_dispatches).
+    run_script("bench_peer.py", "--smoke", "--reps", "2", "--steps", "3", "--in-process",
+               "--out", str(tmp_path))
     doc = load_finite(tmp_path / "peer.json")
     assert [r["scene"] for r in doc["results"]] == ["a", "a_fc", "b"]
+    assert doc["machine"]["cpu_flags"] and doc["machine"]["cpu"]
     for r in doc["results"]:
-        assert r["ratio_hpcmpm_over_peer_min"] > 0
+        assert r["ratio_hpcmpm_over_peer_min"] > 0 and r["process_threads"] >= 1
         # Same particles, step and walls: the two codes must agree closely.
         assert r["max_position_difference_cells"] < 0.05
 
 
 def test_ceiling_smoke(tmp_path):
-    run_script("bench_ceiling.py", "--smoke", "--reps", "2", "--steps", "3", "--out",
-               str(tmp_path))
+    run_script("bench_ceiling.py", "--smoke", "--reps", "2", "--steps", "3", "--in-process",
+               "--out", str(tmp_path))
     doc = load_finite(tmp_path / "ceiling.json")
     assert {r["scene"] for r in doc["results"]} == {"a", "a_fc", "b"}
     for r in doc["results"]:
@@ -124,9 +128,32 @@ def test_bench_command_dispatches(tmp_path):
     with pytest.raises(HpcmpmError, match="unknown benchmark"):
         bench_command(SimpleNamespace(bench_args=["nonsense"]))
     code = bench_command(SimpleNamespace(bench_args=[
-        "ceiling", "--smoke", "--scene", "a", "--reps", "1", "--steps", "2",
+        "ceiling", "--smoke", "--scene", "a", "--reps", "1", "--steps", "2", "--launches", "2",
         "--out", str(tmp_path)]))
     assert code == 0 and (tmp_path / "ceiling.json").exists()
+    # Two separate launches of scene a: the ratio is reported as their range.
+    r = json.loads((tmp_path / "ceiling.json").read_text())["results"][0]
+    assert len(r["launches"]) == 2 and len(r["ratio_hpcmpm_over_ceiling_min_launches"]) == 2
+    lo, hi = r["ratio_hpcmpm_over_ceiling_min_range"]
+    assert 0 < lo <= hi
+
+
+def test_launches_are_merged_into_ranges_per_scene():
+    sys.path.insert(0, str(SCRIPTS))
+    import bench_common as bc
+
+    def doc(launch, ratios):
+        return {"machine": {"cpu": "x", "launch": launch},
+                "results": [{"scene": k, "ratio_x_min": v, "ms": 1.0} for k, v in ratios]}
+
+    merged = bc.merge_launches([doc(0, [("a", 2.0), ("b", 5.0)]), doc(1, [("a", 1.5)]),
+                                doc(2, [("a", 2.5), ("b", 4.0)])])
+    a, b = merged["results"]
+    assert merged["launch_count"] == 3 and merged["machine"]["launch"] == 2
+    assert a["ratio_x_min_launches"] == [2.0, 1.5, 2.5] and a["ratio_x_min_range"] == [1.5, 2.5]
+    assert b["ratio_x_min_range"] == [4.0, 5.0] and len(b["launches"]) == 2
+    assert "ms_range" not in a  # times are not ratios: kept per launch only
+    assert bc.range_text(a, "ratio_x_min") == "1.50-2.50 (3 launches)"
 
 
 def test_scaling_model_smoke(tmp_path):

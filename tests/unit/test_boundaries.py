@@ -10,8 +10,7 @@ import types
 import numpy as np
 import pytest
 
-from hpcmpm.boundaries import (Collider, PrescribedSet, apply_prescribed, build_boundaries,
-                               mark_nodes, parameters)
+from hpcmpm.boundaries import Collider, PrescribedSet, build_boundaries
 from hpcmpm.boundaries.contact import SEPARATE, SLIP, STICKY, project
 from hpcmpm.boundaries.prescribed import scatter_marks
 from hpcmpm.boundaries.walls import Walls
@@ -302,39 +301,42 @@ def test_build_boundaries_from_a_scene():
 
 
 # -- prescribed sets ---------------------------------------------------------------------------
-def brute_force_tags(x, sets, order, dx, origin, shape):
-    """Support nodes of each marked particle, from the definition (highest index wins)."""
+def brute_force_counts(x, sets, set_index, order, dx, origin, shape):
+    """Per node, the number of particles of set ``set_index`` whose support holds it, from the
+    definition of the support (ARCHITECTURE.md)."""
     xi = x / dx
     base = np.floor(xi - 0.5) if order == 2 else np.floor(xi) - 1
-    tags = np.full(shape, -1)
+    counts = np.zeros(shape)
     for b, s in zip(base.astype(int), sets):
-        if s < 0:
+        if s != set_index:
             continue
         region = tuple(slice(b[a] - origin[a], b[a] - origin[a] + order + 1)
                        for a in range(len(b)))
-        tags[region] = np.maximum(tags[region], s)
-    return tags
+        counts[region] += 1
+    return counts
+
+
+def marks_of(x, sets, set_index, order, dx, origin, shape):
+    dim = x.shape[1]
+    marks = np.zeros(shape + (1,) * (3 - dim))
+    org3 = np.zeros(3, np.int64)
+    org3[:dim] = origin
+    scatter_marks(x, sets, set_index, order, dx, np.zeros(3), org3, marks)
+    return marks.reshape(shape)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("order", [2, 3])
-def test_mark_nodes_covers_exactly_the_support(dim, order):
+def test_scatter_marks_counts_exactly_the_support(dim, order):
     rng = np.random.default_rng(order + dim)
     dx, origin, shape = 0.1, np.full(dim, -1), (14,) * dim
     x = rng.uniform(0.2, 1.0, size=(60, dim))
     sets = rng.choice([-1, 0, 1], size=60).astype(np.int32)  # two sets that overlap
-    tags = np.full(shape, -1, dtype=np.int32)
-    mark_nodes(x, sets, origin, dx, np.zeros(dim), order, tags)
-    assert np.array_equal(tags, brute_force_tags(x, sets, order, dx, origin, shape))
-    assert (tags == 0).any() and (tags == 1).any() and (tags == -1).any()
-    # The per-set counts used by the simulation mark the same nodes.
-    marks = np.zeros(shape + (1,) * (3 - dim))
-    org3 = np.zeros(3, np.int64)
-    org3[:dim] = origin
-    scatter_marks(x, sets, 1, order, dx, np.zeros(3), org3, marks)
-    assert np.array_equal(marks.reshape(shape) > 0,
-                          brute_force_tags(x, np.where(sets == 1, 1, -1), order, dx, origin,
-                                           shape) == 1)
+    for set_index in (0, 1):
+        marks = marks_of(x, sets, set_index, order, dx, origin, shape)
+        assert np.array_equal(marks, brute_force_counts(x, sets, set_index, order, dx, origin,
+                                                        shape))
+        assert (marks > 0).any() and (marks == 0).any()
 
 
 def prescribed_spec(dim, velocity, omega, center):
@@ -358,18 +360,18 @@ def test_prescribed_rigid_motion_is_reproduced_exactly(dim, order):
     index = np.where(chosen, 0, -1).astype(np.int32)
     shape = (14,) * dim
     origin = np.full(dim, -2)
-    tags = np.full(shape, -1, dtype=np.int32)
-    mark_nodes(x, index, origin, dx, np.zeros(dim), order, tags)
-    v = rng.normal(size=shape + (dim,))
-    free = v.copy()
-    apply_prescribed(v, tags, *parameters([s]), origin, dx, np.zeros(dim), t)
+    marks = marks_of(x, index, 0, order, dx, origin, shape)
+    free = rng.normal(size=shape + (dim,))
+    v = free.copy()
+    # The rigid field is centred at c(t), t the start of the step (PrescribedSet.apply).
+    s.apply(v, origin, dx, np.zeros(dim), t, 0.01, {s.mark_field: marks})
     nodes = (np.stack(np.indices(shape), -1) + origin) * dx
     r = nodes - (centre0 + v_lin * t)
     if dim == 3:
         rigid = v_lin + np.cross(omega, r)
     else:
         rigid = v_lin + omega * np.stack([-r[..., 1], r[..., 0]], -1)
-    on = tags >= 0
+    on = marks > 0
     np.testing.assert_allclose(v[on], rigid[on], atol=1e-15)
     assert np.array_equal(v[~on], free[~on])
     # G2P of the marked particles: v_p = sum_i w_ip v_i is the rigid velocity at x_p exactly
@@ -384,12 +386,3 @@ def test_prescribed_rigid_motion_is_reproduced_exactly(dim, order):
         rp = x[chosen][p] - (centre0 + v_lin * t)
         want = v_lin + (np.cross(omega, rp) if dim == 3 else omega * np.array([-rp[1], rp[0]]))
         np.testing.assert_allclose(vp, want, atol=1e-13)
-    # The simulation's per-set path imposes the same velocities.
-    marks = np.zeros(shape)
-    org3 = np.zeros(3, np.int64)
-    org3[:dim] = origin
-    scatter_marks(x, index, 0, order, dx, np.zeros(3), org3,
-                  marks.reshape(shape + (1,) * (3 - dim)))
-    v2 = free.copy()
-    s.apply(v2, origin, dx, np.zeros(dim), t, 0.01, {s.mark_field: marks})
-    assert np.array_equal(v2, v)

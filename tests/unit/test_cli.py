@@ -1,20 +1,19 @@
 """Bad scenes through the console script: one line naming file and key, exit code 2, no
 traceback. Each case edits a valid scene so exactly one thing is wrong."""
 
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from test_scene import CASES
+from launch import run_in_group
 
 GOOD = Path("inputs/disks_2d.toml").read_text()
 
 
 def hpcmpm(*args, cwd=None):
     exe = Path(sys.executable).with_name("hpcmpm")
-    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=120,
-                          cwd=cwd)
+    return run_in_group([str(exe), *args], timeout=120, cwd=cwd)
 
 
 # The expected lines live in test_scene.CASES; through the console script each kind of
@@ -80,7 +79,7 @@ def test_set_on_the_command_line_and_its_problems():
                   "--set", "bodies.0.radius=0.1")
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.splitlines()[0] == \
-        "inputs/disks_2d.toml: ok (394 particles, 1 materials, dim 2)"
+        "inputs/disks_2d.toml: ok (394 particles, 1 material, dim 2)"
     proc = hpcmpm("validate", "inputs/disks_2d.toml", "--set", "simulation.cfl=abc")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip() == ("hpcmpm: error: inputs/disks_2d.toml: simulation.cfl: "
@@ -124,3 +123,23 @@ def test_rank_comes_from_the_launcher_environment(monkeypatch):
     assert cli._rank() == 0
     monkeypatch.setenv("OMPI_COMM_WORLD_RANK", "3")
     assert cli._rank() == 3
+
+
+def test_every_option_and_positional_has_help_and_the_program_says_what_it_is():
+    import argparse
+
+    from hpcmpm import cli
+
+    parser = cli.build_parser()
+    assert parser.description.startswith("hpcmpm: an MPI-distributed Material Point Method")
+    assert "argument parsing" not in parser.format_help()  # the module docstring stays internal
+    parsers = {"hpcmpm": parser}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            parsers.update({f"hpcmpm {name}": sub for name, sub in action.choices.items()})
+    missing = [f"{name} {action.dest}" for name, p in parsers.items() for action in p._actions
+               if not action.help and not isinstance(action, argparse._HelpAction)]
+    assert missing == []
+    verbs = {"run", "restart", "validate", "info", "jobscript", "bench", "render", "plot"}
+    assert set(parsers) == {"hpcmpm"} | {f"hpcmpm {v}" for v in verbs}  # none escaped
+    assert cli.count(1, "material") == "1 material" and cli.count(2, "material") == "2 materials"

@@ -12,6 +12,7 @@ from hpcmpm.errors import CheckpointError
 from hpcmpm.io.checkpoint import (checkpoint_name, latest_checkpoint, read_checkpoint,
                                   write_checkpoint)
 from hpcmpm.state import FieldSpec, ParticleSet
+from launch import run_in_group
 
 EXTRA = {"F": FieldSpec("tensor", "f8", "identity"), "tau": FieldSpec("tensor"),
          "Fp": FieldSpec("tensor", "f8", "identity"),
@@ -165,7 +166,6 @@ def test_unwritable_folder_is_a_checkpoint_error(tmp_path):
 def test_fluid_checkpoint_holding_F_restarts_with_J(tmp_path, monkeypatch):
     """A checkpoint of a fluid-only scene written when particles still carried F (before J
     alone) restarts with J = det F, not with the fill value 1."""
-    import subprocess
     import sys
     from pathlib import Path
 
@@ -175,9 +175,8 @@ def test_fluid_checkpoint_holding_F_restarts_with_J(tmp_path, monkeypatch):
 
     out = tmp_path / "dam"
     exe = Path(sys.executable).with_name("hpcmpm")
-    proc = subprocess.run([str(exe), "run", "inputs/dam_break_2d.toml", "--out", str(out),
-                           "--quiet", "--set", "simulation.end_time=0.05"],
-                          capture_output=True, text=True, timeout=300)
+    proc = run_in_group([str(exe), "run", "inputs/dam_break_2d.toml", "--out", str(out),
+                         "--quiet", "--set", "simulation.end_time=0.05"], timeout=300)
     assert proc.returncode == 0, proc.stderr
     ckpt = latest_checkpoint(out)
     fields, _ = read_checkpoint(ckpt, Communicator())

@@ -18,7 +18,8 @@ def test_info_on_a_frame(tmp_path, capsys):
     out = capsys.readouterr().out
     for expected in ("kind:        frame", "scene:       frame test", "time:        0.125",
                      "step:        10", "dim:         3", "particles:   30", "ranks:       2",
-                     "version:     hpcmpm", "restarts:    a.toml", "/particles/x",
+                     "version:     hpcmpm", "provenance:  run of a.toml, not restarted",
+                     "/particles/x",
                      "(30, 3)", "float64", "/particles/material", "int32"):
         assert expected in out, expected
     assert "checksum" not in out
@@ -54,3 +55,11 @@ def test_scene_name_sources():
     assert scene_name('[scene]\nname = "snow"') == "snow"
     assert scene_name("broken = [", "/a/b/sand.toml") == "sand"
     assert scene_name("") == "(unnamed)"
+
+
+def test_provenance_line_says_what_the_chain_is():
+    from hpcmpm.io.info import provenance
+
+    assert provenance(["/s/disks_2d.toml"]) == "run of /s/disks_2d.toml, not restarted"
+    assert provenance(["/s/d.toml", "/r/ckpt_000000100.h5", "/r/ckpt_000000200.h5"]) == \
+        "run of /s/d.toml, restarted from /r/ckpt_000000100.h5, then /r/ckpt_000000200.h5"

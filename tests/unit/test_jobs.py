@@ -9,6 +9,7 @@ import pytest
 
 from hpcmpm.errors import EXIT_CHECKPOINTED_ON_SIGNAL
 from hpcmpm.jobs import JobScriptError, render
+from launch import run_in_group
 
 
 @pytest.mark.parametrize("scheduler", ["slurm", "pbs"])
@@ -18,7 +19,7 @@ def test_rendered_script_is_valid_bash_with_resume_logic(tmp_path, scheduler):
     script.write_text(text)
     assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
     assert "ckpt_*.h5" in text and "hpcmpm restart" in text and "hpcmpm run" in text
-    assert "trap 'kill -USR1 $pid" in text
+    assert """trap 'signalled=1; [ -n "$pid" ] && kill -USR1 $pid""" in text
     assert str(EXIT_CHECKPOINTED_ON_SIGNAL) in text
     if scheduler == "slurm":
         assert "#SBATCH --signal=B:USR1@" in text and "scontrol requeue" in text
@@ -27,7 +28,8 @@ def test_rendered_script_is_valid_bash_with_resume_logic(tmp_path, scheduler):
         assert "select=2:ncpus=8:mpiprocs=8" in text and "qsub" in text
 
 
-def _run_with_stubs(tmp_path, scheduler, launcher, exit_code):
+def _run_with_stubs(tmp_path, scheduler, launcher, exit_code, script_name="job.sh",
+                    rendered_path="", **render_args):
     """Run the rendered script with `launcher` (srun/mpiexec) replaced by a stub that records
     its arguments and exits with ``exit_code``; the requeue commands are stubs too."""
     bin_dir = tmp_path / "bin"
@@ -40,12 +42,11 @@ def _run_with_stubs(tmp_path, scheduler, launcher, exit_code):
         stub.chmod(0o755)
     out = tmp_path / "out"
     text = render(scheduler, "scene.toml", 1, 2, "00:10:00", out_dir=str(out),
-                  activate="true")
-    script = tmp_path / "job.sh"
+                  activate="true", script_path=rendered_path, **render_args)
+    script = tmp_path / script_name
     script.write_text(text)
     env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", SLURM_JOB_ID="42")
-    proc = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True,
-                          timeout=60, cwd=tmp_path)
+    proc = run_in_group(["bash", str(script)], env=env, timeout=60, cwd=tmp_path)
     return proc, log.read_text().splitlines(), out
 
 
@@ -69,6 +70,61 @@ def test_bad_walltime_is_a_clear_error():
         render("slurm", "x.toml", 1, 1, "90 minutes")
 
 
+@pytest.mark.parametrize("rendered", [True, False])
+def test_pbs_resubmits_the_script_it_was_saved_as(tmp_path, rendered):
+    # Rendered with -o: the file it was written to, even when PBS runs a copy of it (played by
+    # the script run here); rendered to stdout and saved by hand: the script that runs ($0).
+    # Either way not a fixed "job.sh".
+    saved = tmp_path / "my_disks_run.pbs"
+    proc, calls, _ = _run_with_stubs(tmp_path, "pbs", "mpiexec", EXIT_CHECKPOINTED_ON_SIGNAL,
+                                     script_name="1234.server.SC",
+                                     rendered_path=str(saved) if rendered else "")
+    assert proc.returncode == EXIT_CHECKPOINTED_ON_SIGNAL, proc.stderr
+    if rendered:
+        assert f"qsub {saved}" not in calls  # the rendered file is gone: fall back to $0
+        saved.write_text((tmp_path / "1234.server.SC").read_text())
+        (tmp_path / "calls.log").unlink()
+        proc, calls, _ = _run_with_stubs(tmp_path, "pbs", "mpiexec",
+                                         EXIT_CHECKPOINTED_ON_SIGNAL,
+                                         script_name="1234.server.SC", rendered_path=str(saved))
+    expected = saved if rendered else tmp_path / "1234.server.SC"
+    assert calls[-1] == f"qsub {expected}", calls
+
+
+@pytest.mark.parametrize("mpi,expected", [("pmi2", "srun --mpi=pmi2 --kill-on-bad-exit=1"),
+                                          ("pmix", "srun --mpi=pmix --kill-on-bad-exit=1"),
+                                          ("default", "srun --kill-on-bad-exit=1")])
+def test_srun_gets_the_mpi_plugin(tmp_path, mpi, expected):
+    proc, calls, _ = _run_with_stubs(tmp_path, "slurm", "srun", 0, srun_mpi=mpi)
+    assert proc.returncode == 0, proc.stderr
+    assert any(c.startswith(f"{expected} hpcmpm run scene.toml") for c in calls), calls
+
+
+def test_bad_mpi_plugin_is_a_clear_error():
+    with pytest.raises(JobScriptError, match="--mpi: expected an srun MPI plugin"):
+        render("slurm", "x.toml", 1, 1, "01:00:00", srun_mpi="pmi2; rm -rf /")
+
+
+def test_jobscript_command_checks_the_run_and_creates_the_log_folder(tmp_path, monkeypatch,
+                                                                        capsys):
+    from hpcmpm import cli
+
+    scene = Path("inputs/bar_2d.toml").resolve()
+    monkeypatch.chdir(tmp_path)
+    base = ["jobscript", "--scheduler", "slurm", "--time", "00:10:00"]
+    # A scene that does not exist, or does not validate, is refused before any queue wait.
+    assert cli.main([*base, "no/such/scene.toml"]) == 2
+    assert "hpcmpm: error: no/such/scene.toml: no such file" in capsys.readouterr().err
+    assert cli.main([*base, str(scene), "--", "--set", "simulation.cfl=-1"]) == 2
+    assert "simulation.cfl: must be > 0.0, got -1" in capsys.readouterr().err
+    assert cli.main([*base, str(scene), "--", "--end-time", "0"]) == 2
+    assert "--end-time: must be > 0.0, got 0.0" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
+    # A good one: the folder SLURM opens the log in exists before submission.
+    assert cli.main([*base, str(scene), "-o", "job.sh"]) == 0
+    assert (tmp_path / "runs" / "bar_2d").is_dir()
+    text = (tmp_path / "job.sh").read_text()
+    assert "#SBATCH --output=runs/bar_2d/slurm-%j.out" in text and "--mpi=pmi2" in text
 @pytest.mark.parametrize("has_mpi,mode", [(True, "mpio"), (False, "serial")])
 def test_script_writes_in_mpio_mode_when_h5py_has_mpi(tmp_path, has_mpi, mode):
     """The job runs with HPCMPM_IO_MODE=mpio exactly when the environment's h5py was built

@@ -107,7 +107,7 @@ CASES = {
                             "bodies[0].velocity_field.type: unknown value 'axial'"),
     "output_field": (GOOD.replace("every = 0.1", 'every = 0.1\nfields = ["Jp"]'),
                      "output.fields[0]: no particle field 'Jp' in this scene (available: id, "
-                     "group, x, v, mass, vol0, F, tau, C)"),
+                     "group, x, v, mass, vol0, F, C, tau)"),
     "max_dt": (GOOD.replace("cfl = 0.4", "cfl = 0.4\nmax_dt = -1e-3"),
                "simulation.max_dt: must be > 0.0, got -0.001"),
     "checkpoint_every": (GOOD.replace("every = 0.1", "every = 0.1\ncheckpoint_every = 0"),
@@ -172,10 +172,12 @@ def test_set_overrides_values_tables_and_list_items():
 
 def test_bad_overrides_are_reported_like_file_problems():
     lines = problems(GOOD, ["simulation.cfl=abc", "materials.3.E=1", "nonsense",
-                            "simulation.cfll=0.3"])
+                            "simulation.cfll=0.3", "materials.steel.E=1"])
     assert lines == [
-        "scene.toml: --set materials.3.E: no such key",
+        "scene.toml: --set materials.3.E: no entry 3 (materials has 1)",
         "scene.toml: --set nonsense: expected key.path=value",
+        "scene.toml: --set materials.steel.E: no entry named 'steel' in materials (names: "
+        "rubber; or give an index)",
         "scene.toml: simulation.cfll: unknown key (did you mean 'cfl'?)",
         "scene.toml: simulation.cfl: must be a number, got string 'abc'",
     ]
@@ -267,3 +269,37 @@ def test_the_documented_example_is_a_valid_scene():
     scene = parse_scene(example, "docs/scene-format.md")
     assert len(scene.bodies) == 2 and scene.colliders[0].end == 1.0
     assert scene.walls.faces[0] == WallFace("separate", 0.3)
+
+
+def test_set_picks_array_entries_by_name_or_default_name():
+    text = GOOD + """
+[[colliders]]
+shape = "half_space"
+point = [0.0, 0.1]
+normal = [0.0, 1.0]
+"""
+    scene = parse_scene(text, "scene.toml", ["materials.rubber.E=2000.0",
+                                             "bodies.upper_right.velocity=[0.0, -0.2]",
+                                             "colliders.collider0.friction=0.5"])
+    assert scene.materials[0].params["E"] == 2000.0
+    assert scene.bodies[1].name == "upper_right" and scene.bodies[1].velocity == (0.0, -0.2)
+    assert scene.bodies[0].velocity == (0.1, 0.1)  # only the named body changed
+    assert scene.colliders[0].friction == 0.5
+    # By name and by index reach the same entry.
+    assert parse_scene(GOOD, "s", ["bodies.lower_left.radius=0.1"]) == \
+        parse_scene(GOOD, "s", ["bodies.0.radius=0.1"])
+
+
+@pytest.mark.parametrize("path", sorted(Path("inputs").glob("*.toml")), ids=lambda p: p.stem)
+def test_output_fields_offered_are_the_fields_the_run_allocates(path):
+    """One source (simulation.particle_field_specs): the scene check offers exactly the fields a
+    Simulation of the scene allocates, plus tau (computed for output)."""
+    from hpcmpm.runner import make_domain
+    from hpcmpm.simulation import Simulation
+
+    with pytest.raises(SceneError) as info:
+        load_scene(path, ['output.fields=["no_such_field"]'])
+    offered = info.value.problems[0].split("available: ")[1].rstrip(")").split(", ")
+    scene = load_scene(path)
+    allocated = set(Simulation(scene, make_domain(scene)).particles.specs)
+    assert set(offered) == allocated | {"tau"}, (offered, allocated)

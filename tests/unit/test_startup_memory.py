@@ -52,7 +52,7 @@ def test_validate_and_run_report_a_scene_too_big_in_one_line():
     proc = hpcmpm("validate", *BIG)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     lines = proc.stdout.splitlines()
-    assert lines[0] == "inputs/jelly_cube_3d.toml: ok (2744000000 particles, 1 materials, dim 3)"
+    assert lines[0] == "inputs/jelly_cube_3d.toml: ok (2744000000 particles, 1 material, dim 3)"
     assert "2,744,000,000 particles" in lines[1] and "available" in lines[1]
     proc = hpcmpm("run", *BIG, "--dry-run", "--out", "/nonexistent/never/written")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
@@ -62,7 +62,7 @@ def test_validate_and_run_report_a_scene_too_big_in_one_line():
 
 def test_validate_report_and_dry_run_of_a_small_scene(capsys):
     ok, memory = startup.validate_report(load_scene("inputs/disks_2d.toml")).splitlines()
-    assert ok == "inputs/disks_2d.toml: ok (2528 particles, 1 materials, dim 2)"
+    assert ok == "inputs/disks_2d.toml: ok (2528 particles, 1 material, dim 2)"
     assert memory.startswith("inputs/disks_2d.toml: memory estimate: 2,528 particles, ")
     assert "available here" in memory
     from hpcmpm.cli import main

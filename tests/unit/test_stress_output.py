@@ -2,7 +2,6 @@
 material kernel and P2G), but ``output.fields = ["tau"]`` still writes it: computed at frame
 time on copies of the material state, so asking for it must not change the run."""
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import numpy as np
 
 from hpcmpm.materials import make_material
 from hpcmpm.scene import parse_scene
+from launch import run_in_group
 
 SNOW = Path("inputs/snow_block_3d.toml").read_text()
 
@@ -23,8 +23,8 @@ def run(tmp_path: Path, name: str, fields: str) -> Path:
     scene.write_text(text)
     out = tmp_path / name
     exe = Path(sys.executable).with_name("hpcmpm")
-    proc = subprocess.run([str(exe), "run", str(scene), "--out", str(out), "--quiet"],
-                          capture_output=True, text=True, timeout=300)
+    proc = run_in_group([str(exe), "run", str(scene), "--out", str(out), "--quiet"],
+                        timeout=300)
     assert proc.returncode == 0, proc.stderr
     return out
 

@@ -10,9 +10,11 @@ import importlib.util
 import json
 import math
 import os
-import subprocess
 import sys
 from pathlib import Path
+
+import pytest
+from launch import run_in_group
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = REPO / "scripts"
@@ -22,8 +24,8 @@ PEER = "taichi-mls"  # the Taichi peer's rows in study_error.csv
 def run_script(name: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
     env.setdefault("NUMBA_CACHE_DIR", str(REPO / ".numba_cache"))
-    result = subprocess.run([sys.executable, str(SCRIPTS / name), *args], cwd=REPO, env=env,
-                            capture_output=True, text=True, timeout=timeout)
+    result = run_in_group([sys.executable, str(SCRIPTS / name), *args], cwd=REPO, env=env,
+                          timeout=timeout)
     assert result.returncode == 0, \
         f"{name} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     return result
@@ -60,7 +62,9 @@ def test_study_error_smoke(tmp_path):
     if importlib.util.find_spec("taichi") is None:
         assert not peer
         assert f"peer ({PEER}) skipped: taichi not importable" in result.stdout
-        return
+        # The rest passed; the strongest check is not made, and the report says so.
+        pytest.skip("the Taichi peer's agreement to 1e-9 (check_peer_rows) needs taichi "
+                    "(pip install -e '.[bench]')")
     check_peer_rows(peer, hpcmpm)
 
 
@@ -94,8 +98,7 @@ def test_study_error_without_taichi(tmp_path):
                f"runpy.run_path({str(SCRIPTS / 'study_error.py')!r}, run_name='__main__')")
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
     env.setdefault("NUMBA_CACHE_DIR", str(REPO / ".numba_cache"))
-    result = subprocess.run([sys.executable, "-c", blocked], cwd=REPO, env=env,
-                            capture_output=True, text=True, timeout=300)
+    result = run_in_group([sys.executable, "-c", blocked], cwd=REPO, env=env, timeout=300)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert f"peer ({PEER}) skipped: taichi not importable" in result.stdout
     rows = list(csv.DictReader(open(tmp_path / "study_error.csv")))

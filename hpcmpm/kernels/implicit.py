@@ -1,0 +1,367 @@
+"""Kernels of the semi-implicit step (000 §3.4, §5.5, appendix A; Stomakhin 2013; Gast 2015).
+
+The unknown is the grid velocity v_hat; a particle sees it through its velocity gradient
+
+    L_p(v) = sum_i v_i (grad w_ip)^T                                     (000 §5.5)
+
+with the weights at x^n. Every grid-level quantity of the solve is one of three particle loops:
+
+- `CONTRACT`: a grid vector u to L_p(u) (the same sum G2P forms for the step's L);
+- `SCATTER_TENSOR`: per-particle tensors G_p (n, d, d) to ``out_i += scale sum_p G_p grad w_ip``
+  (with G_p = de_p/dL_p and scale -1 this is the grid force -dPhi/dv_hat; with dG_p =
+  D^2 e_p[dL_p] and scale +1 the material part of the Hessian-vector product);
+- `SCATTER_DIAGONAL`: the diagonal of the material Hessian,
+  ``out_ia += sum_p sum_bc K_p[a, b, c] g_b g_c`` with K_p[a, b, c] = d^2 e_p/dL_ab dL_ac and
+  g = grad w_ip (the Jacobi preconditioner).
+
+"grad w" is the B-spline gradient for PIC, FLIP and APIC, and the MLS gradient
+``w_ip D^-1 (x_i - x_p)`` for MLS-MPM, so that L_p is exactly the L (= C) that G2P stores
+for every transfer and the solve's force is the force of the explicit step. The scheme
+enters as ``static(mls)``, the kernel order as ``static(order)`` (`kernels.transfer.static`).
+
+The rest are flat grid loops over (N,) scalars and (N, d) vectors (any block viewed with
+``reshape(-1, d)``): the constraint projection and the vector updates of the conjugate
+gradient.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from .shape import stencil_base, weights
+
+
+@njit(cache=True)
+def contract_2d(x, u, mls, order, dinv_factor, dx, domain_lo, origin, L):
+    """L_p = sum_i u_i grad w_ip^T in 2D. x (n, 2); u (nx, ny, 2) on the block; L (n, 2, 2)."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1 = domain_lo[0], domain_lo[1]
+    o0, o1 = origin[0], origin[1]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
+        l0, l1 = b0 - o0, b1 - o1
+        a00 = a01 = a10 = a11 = 0.0
+        for i in range(s):
+            for j in range(s):
+                if mls:
+                    wd = w0[i] * w1[j] * dinv
+                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
+                else:
+                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                u0, u1 = u[l0 + i, l1 + j, 0], u[l0 + i, l1 + j, 1]
+                a00 += u0 * g0
+                a01 += u0 * g1
+                a10 += u1 * g0
+                a11 += u1 * g1
+        L[p, 0, 0], L[p, 0, 1], L[p, 1, 0], L[p, 1, 1] = a00, a01, a10, a11
+
+
+@njit(cache=True)
+def contract_3d(x, u, mls, order, dinv_factor, dx, domain_lo, origin, L):
+    """L_p = sum_i u_i grad w_ip^T in 3D; see `contract_2d`."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        xi2 = (x[p, 2] - lo2) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        b2 = stencil_base(xi2, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        w2, dw2 = weights(xi2, b2, order, inv_dx)
+        e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
+        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+        for i in range(s):
+            for j in range(s):
+                wij = w0[i] * w1[j]
+                for k in range(s):
+                    if mls:
+                        wd = wij * w2[k] * dinv
+                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
+                    else:
+                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    n0, n1, n2 = l0 + i, l1 + j, l2 + k
+                    u0, u1, u2 = u[n0, n1, n2, 0], u[n0, n1, n2, 1], u[n0, n1, n2, 2]
+                    a00 += u0 * g0
+                    a01 += u0 * g1
+                    a02 += u0 * g2
+                    a10 += u1 * g0
+                    a11 += u1 * g1
+                    a12 += u1 * g2
+                    a20 += u2 * g0
+                    a21 += u2 * g1
+                    a22 += u2 * g2
+        L[p, 0, 0], L[p, 0, 1], L[p, 0, 2] = a00, a01, a02
+        L[p, 1, 0], L[p, 1, 1], L[p, 1, 2] = a10, a11, a12
+        L[p, 2, 0], L[p, 2, 1], L[p, 2, 2] = a20, a21, a22
+
+
+@njit(cache=True)
+def scatter_tensor_2d(x, G, scale, mls, order, dinv_factor, dx, domain_lo, origin, out):
+    """out_i += scale sum_p G_p grad w_ip in 2D. G (n, 2, 2); out (nx, ny, 2), in place."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1 = domain_lo[0], domain_lo[1]
+    o0, o1 = origin[0], origin[1]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
+        l0, l1 = b0 - o0, b1 - o1
+        t00, t01 = scale * G[p, 0, 0], scale * G[p, 0, 1]
+        t10, t11 = scale * G[p, 1, 0], scale * G[p, 1, 1]
+        for i in range(s):
+            for j in range(s):
+                if mls:
+                    wd = w0[i] * w1[j] * dinv
+                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
+                else:
+                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                out[l0 + i, l1 + j, 0] += t00 * g0 + t01 * g1
+                out[l0 + i, l1 + j, 1] += t10 * g0 + t11 * g1
+
+
+@njit(cache=True)
+def scatter_tensor_3d(x, G, scale, mls, order, dinv_factor, dx, domain_lo, origin, out):
+    """out_i += scale sum_p G_p grad w_ip in 3D; see `scatter_tensor_2d`."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        xi2 = (x[p, 2] - lo2) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        b2 = stencil_base(xi2, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        w2, dw2 = weights(xi2, b2, order, inv_dx)
+        e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
+        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        t00, t01, t02 = scale * G[p, 0, 0], scale * G[p, 0, 1], scale * G[p, 0, 2]
+        t10, t11, t12 = scale * G[p, 1, 0], scale * G[p, 1, 1], scale * G[p, 1, 2]
+        t20, t21, t22 = scale * G[p, 2, 0], scale * G[p, 2, 1], scale * G[p, 2, 2]
+        for i in range(s):
+            for j in range(s):
+                wij = w0[i] * w1[j]
+                for k in range(s):
+                    if mls:
+                        wd = wij * w2[k] * dinv
+                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
+                    else:
+                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    n0, n1, n2 = l0 + i, l1 + j, l2 + k
+                    out[n0, n1, n2, 0] += t00 * g0 + t01 * g1 + t02 * g2
+                    out[n0, n1, n2, 1] += t10 * g0 + t11 * g1 + t12 * g2
+                    out[n0, n1, n2, 2] += t20 * g0 + t21 * g1 + t22 * g2
+
+
+@njit(cache=True)
+def scatter_diagonal_2d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, out):
+    """out_ia += sum_p sum_bc K_p[a, b, c] g_b g_c, g = grad w_ip, in 2D: the diagonal of
+    sum_p D^2 e_p contracted with the weight gradients. K (n, 2, 2, 2); out (nx, ny, 2)."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1 = domain_lo[0], domain_lo[1]
+    o0, o1 = origin[0], origin[1]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
+        l0, l1 = b0 - o0, b1 - o1
+        for i in range(s):
+            for j in range(s):
+                if mls:
+                    wd = w0[i] * w1[j] * dinv
+                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
+                else:
+                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                for a in range(2):
+                    out[l0 + i, l1 + j, a] += (K[p, a, 0, 0] * g0 * g0
+                                               + (K[p, a, 0, 1] + K[p, a, 1, 0]) * g0 * g1
+                                               + K[p, a, 1, 1] * g1 * g1)
+
+
+@njit(cache=True)
+def scatter_diagonal_3d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, out):
+    """3D version of `scatter_diagonal_2d`; K (n, 3, 3, 3)."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        xi2 = (x[p, 2] - lo2) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        b2 = stencil_base(xi2, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        w2, dw2 = weights(xi2, b2, order, inv_dx)
+        e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
+        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        for i in range(s):
+            for j in range(s):
+                wij = w0[i] * w1[j]
+                for k in range(s):
+                    if mls:
+                        wd = wij * w2[k] * dinv
+                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
+                    else:
+                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    n0, n1, n2 = l0 + i, l1 + j, l2 + k
+                    for a in range(3):
+                        out[n0, n1, n2, a] += (
+                            K[p, a, 0, 0] * g0 * g0 + K[p, a, 1, 1] * g1 * g1
+                            + K[p, a, 2, 2] * g2 * g2
+                            + (K[p, a, 0, 1] + K[p, a, 1, 0]) * g0 * g1
+                            + (K[p, a, 0, 2] + K[p, a, 2, 0]) * g0 * g2
+                            + (K[p, a, 1, 2] + K[p, a, 2, 1]) * g1 * g2)
+
+
+CONTRACT = {2: contract_2d, 3: contract_3d}
+SCATTER_TENSOR = {2: scatter_tensor_2d, 3: scatter_tensor_3d}
+SCATTER_DIAGONAL = {2: scatter_diagonal_2d, 3: scatter_diagonal_3d}
+
+
+# -- flat grid loops: u (N, d) vectors, free (N,) 0/1 ------------------------------------------
+@njit(cache=True)
+def project(u, free, nodes, basis, count):
+    """The linear constraint mask, in place: u_i <- free_i (I - sum_k q_k q_k^T) u_i.
+
+    free (N,) is 1 on the unknowns' nodes (owned, with mass) and 0 elsewhere; nodes (k,)
+    lists the constrained nodes, basis (k, 3, 3) their orthonormal constrained directions
+    (rows, padded to 3 components) and count (k,) how many of them each has."""
+    d = u.shape[1]
+    for n in range(u.shape[0]):
+        if free[n] == 0.0:
+            for a in range(d):
+                u[n, a] = 0.0
+    for k in range(nodes.shape[0]):
+        n = nodes[k]
+        for c in range(count[k]):
+            s = 0.0
+            for a in range(d):
+                s += u[n, a] * basis[k, c, a]
+            for a in range(d):
+                u[n, a] -= s * basis[k, c, a]
+
+
+@njit(cache=True)
+def add_inertia(out, mass, u, target, free):
+    """out_i += free_i m_i (u_i - target_i): the inertia term of the gradient of E
+    (000 §3.4: E = 1/2 sum_i m_i |v_i - v*_i|^2 + sum_p e_p). Flat (N, d) and (N,) arrays."""
+    d = out.shape[1]
+    for n in range(out.shape[0]):
+        if free[n] != 0.0:
+            m = mass[n]
+            for a in range(d):
+                out[n, a] += m * (u[n, a] - target[n, a])
+
+
+@njit(cache=True)
+def add_mass_times(out, mass, u, free):
+    """out_i += free_i m_i u_i: the inertia term of the Hessian-vector product."""
+    d = out.shape[1]
+    for n in range(out.shape[0]):
+        if free[n] != 0.0:
+            m = mass[n]
+            for a in range(d):
+                out[n, a] += m * u[n, a]
+
+
+@njit(cache=True)
+def axpy(alpha, x, y):
+    """y <- y + alpha x (flat arrays)."""
+    for n in range(y.shape[0]):
+        y[n] += alpha * x[n]
+
+
+@njit(cache=True)
+def xpby(x, beta, y):
+    """y <- x + beta y (flat arrays)."""
+    for n in range(y.shape[0]):
+        y[n] = x[n] + beta * y[n]
+
+
+@njit(cache=True)
+def multiply(a, b, out):
+    """out <- a * b elementwise (flat arrays)."""
+    for n in range(out.shape[0]):
+        out[n] = a[n] * b[n]
+
+
+@njit(cache=True)
+def inverse_diagonal(material, mass, free, out):
+    """Jacobi: out_ia = 1 / (m_i + material_ia), the inverse diagonal of H on the unknowns
+    (0 elsewhere); 1 / m_i where a non-convex material makes that sum non-positive (the mass
+    is the part of the diagonal that is always there). material, out (N, d); mass, free (N,)."""
+    d = out.shape[1]
+    for n in range(out.shape[0]):
+        for a in range(d):
+            total = mass[n] + material[n, a]
+            if free[n] == 0.0:
+                out[n, a] = 0.0
+            elif total > 0.0:
+                out[n, a] = 1.0 / total
+            else:
+                out[n, a] = 1.0 / mass[n]
+
+
+@njit(cache=True)
+def owned_dot(a, b, mass, power, lo, hi):
+    """sum over the nodes of the index box [lo, hi) that have mass of m_i^power a_i . b_i
+    (power 0, 1 or 2). a, b (n0, n1, n2, c) and mass (n0, n1, n2): a block viewed as 3D
+    (n2 = 1 in 2D) with c components. The loop order is fixed: i, j, k, then components."""
+    c = a.shape[3]
+    total = 0.0
+    for i in range(lo[0], hi[0]):
+        for j in range(lo[1], hi[1]):
+            for k in range(lo[2], hi[2]):
+                m = mass[i, j, k]
+                if m <= 0.0:
+                    continue
+                s = 0.0
+                for q in range(c):
+                    s += a[i, j, k, q] * b[i, j, k, q]
+                if power == 1:
+                    s *= m
+                elif power == 2:
+                    s *= m * m
+                total += s
+    return total

@@ -1,0 +1,588 @@
+"""The semi-implicit MPM step (000 §3.4, §5.5, appendix A; Stomakhin 2013; Gast 2015).
+
+The grid velocity of the step minimises
+
+    E(v) = 1/2 sum_i m_i |v_i - v*_i|^2 + sum_p e_p(L_p(v)),   v* = v^n + dt g,
+    L_p(v) = sum_i v_i (grad w_ip)^T                              (weights at x^n)
+
+over the unknowns (owned grid nodes with mass; walls, colliders and prescribed sets fix some
+directions). grad E = 0 is backward Euler for what e_p makes implicit (elasticity,
+viscosity), with the plastic flow explicit: e_p(L) is the material's incremental potential at
+its state of t^n (`Material.implicit_energy` and its derivatives; 000 eq. 5.10-5.14 with the
+issue's corrections). Its gradient and Hessian-vector product on the grid are
+
+    g_i      = m_i (v_i - v*_i) + sum_p G_p grad w_ip,        G_p = de_p/dL_p
+    (H u)_i  = m_i u_i + sum_p D^2 e_p[dL_p(u)] grad w_ip,     dL_p(u) = sum_j u_j grad w_jp^T
+
+(`hpcmpm.kernels.implicit`). ``solver.mode``: "linearized" takes one Newton step from the
+explicit predictor v* (Stomakhin 2013), "newton" iterates with a backtracking line search on E
+(+inf where a material's state would be inadmissible) until |g| <= newton_tolerance |M v*|
+(Gast 2015; 000 §5.7). Each Newton step solves P H P dv = -P g by preconditioned conjugate
+gradients (Jacobi: the exact diagonal of H, or none) to a relative tolerance; P is the
+constraint mask. Distributed: the CG vectors live on owned nodes; H u is "fill ghosts of u ->
+particle contraction -> material Hessian -> scatter -> sum ghosts to owners"; the dot products
+of an iteration travel in one allreduce (Chronopoulos-Gear CG); no grid vector is gathered.
+
+Time step: advection only (000 §5.5 removes the elastic and viscous limits), the largest dt
+with (|v|max + |g| dt) dt <= cfl dx, where |v|max includes kinematic colliders and prescribed
+sets: a fluid at rest under gravity starts with dt = sqrt(cfl dx / |g|) and follows its speed.
+A scene where nothing moves and nothing drives (|v| = |g| = 0, no moving boundary) gets the
+explicit wave-speed bound for that step unless it caps dt itself (simulation.max_dt / dt).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from ..boundaries import Collider, PrescribedSet
+from ..boundaries.colliders import HALF_SPACE, SPHERE, BOX
+from ..errors import InstabilityError, SceneError
+from ..kernels.grid import update_velocity
+from ..kernels.implicit import (CONTRACT, SCATTER_DIAGONAL, SCATTER_TENSOR, add_inertia,
+                                add_mass_times, axpy, inverse_diagonal, multiply, project, xpby)
+from ..kernels.transfer import FLIP, MLS, static
+from ..state import VECTOR
+
+log = logging.getLogger(__name__)
+
+# Newton (mode "newton"): iterations and line-search halvings before the step is declared
+# failed; Armijo's sufficient-decrease constant.
+NEWTON_MAX_ITERATIONS = 50
+LINE_SEARCH_HALVINGS = 30
+ARMIJO = 1e-4
+# Restarts of CG from its iterate when the true residual misses the tolerance that the
+# recursively updated one met (the recurrences drift by round-off at tight tolerances).
+CG_RESTARTS = 3
+
+VECTORS = ("velocity_star", "gradient", "inverse_diagonal", "cg_x", "cg_r", "cg_u", "cg_w",
+           "cg_p", "cg_s")
+
+
+class SolverFailure(InstabilityError):
+    """The implicit solve did not converge (CG or Newton): exit code 3 like any instability."""
+
+
+class SemiImplicitIntegrator:
+    """Backward Euler in the elastic and viscous stress, explicit plastic flow (000 §5.5)."""
+
+    name: ClassVar[str] = "semi_implicit"
+    needs_velocity_gradient: ClassVar[bool] = True
+
+    def __init__(self, sim):
+        self.sim = sim
+        spec = sim.scene.solver
+        self.mode = spec.mode
+        self.jacobi = spec.preconditioner == "jacobi"
+        self.tolerance = float(spec.tolerance)
+        self.max_iterations = int(spec.max_iterations)
+        self.newton_tolerance = float(spec.newton_tolerance)
+        problems = []
+        for i, material in enumerate(sim.materials):
+            if material.on_grid and not getattr(material, "implicit", False):
+                problems.append(f"{sim.scene.path}: materials[{i}].type: {material.name!r} "
+                                f"has no semi-implicit energy; use simulation.integrator = "
+                                f"'explicit'")
+        if problems:
+            raise SceneError(problems)
+        self._mls = static(sim.scheme == MLS)
+        self._declared = False
+        self._shape3 = None
+        self._scratch_n = -1
+        # Statistics: per step, and the window since the last `diagnostics()` call.
+        self.last_step: dict[str, float] = {}
+        self._window: list[tuple[int, int]] = []
+        self.negative_curvature = 0
+        self.halved_steps = 0
+        self._warned_curvature = False
+
+    # -- the step ---------------------------------------------------------------------------
+    def step(self, sim, dt: float) -> None:
+        sim.sort_phase()
+        if sim.forcing is not None:
+            sim.forcing(sim, dt)
+        sim.fit_grid()
+        sim.scatter_mass_momentum()  # m_i, m_i v_i^n (000 §3.4); no stress: the solve has it
+        sim.scatter_forces(dt)  # extensions' particle forces, explicit
+        sim.sum_ghosts()
+        self.solve(sim, dt)  # v_hat = argmin E (000 §5.5), into grid "velocity"
+        sim.fill_ghosts()
+        sim.gather(dt)  # v, C, x <- x + dt v; L_p = sum_i v_i grad w_ip^T stored
+        sim.update_states(dt)  # b_E / F from L over dt, plastic flow with the same L
+        sim.after_g2p(dt)
+        sim.migrate()
+
+    def stable_dt(self, sim, speed: float) -> float:
+        """Advection bound (module docstring): the largest dt with
+        ``(v + |g| dt) dt <= cfl dx``, v = max(|v_p|, kinematic boundary speed)."""
+        budget = sim.scene.cfl * sim.dx
+        v = max(float(speed), kinematic_speed(sim))
+        g = float(np.linalg.norm(sim.gravity))
+        if g > 0.0:
+            dt = 2.0 * budget / (v + math.sqrt(v * v + 4.0 * g * budget))
+        elif v > 0.0:
+            dt = budget / v
+        else:
+            dt = math.inf
+        if not math.isfinite(dt) and sim.scene.dt is None and sim.scene.max_dt is None:
+            c = sim.max_wave_speed()
+            dt = budget / c if c > 0.0 else sim.scene.end_time
+        return dt
+
+    def diagnostics(self) -> dict[str, float]:
+        """CG iterations per step (mean, max) and Newton iterations per step (mean) over the
+        steps since the previous call (a run calls it at every frame), the negative
+        curvature stops and the linearized steps halved for admissibility so far. The same on
+        every rank."""
+        window, self._window = self._window, []
+        cg = [c for c, _ in window] or [0]
+        newton = [n for _, n in window] or [0]
+        return {"cg_iterations_mean": float(np.mean(cg)), "cg_iterations_max": float(max(cg)),
+                "newton_iterations_mean": float(np.mean(newton)),
+                "cg_negative_curvature": float(self.negative_curvature),
+                "halved_steps": float(self.halved_steps)}
+
+    # -- the solve --------------------------------------------------------------------------
+    def solve(self, sim, dt: float) -> None:
+        """Minimise E over the unknowns; the result goes to grid "velocity"."""
+        with sim.timers("solve_setup"):
+            self._prepare(sim, dt)
+        cg_total = 0
+        newton_steps = 0
+        self._halvings = 0
+        line_search = self.mode == "newton"
+        self._rested = False
+        energy = self._start_energy(sim, dt) if line_search else 0.0
+        reference = None
+        for newton_steps in range(1, NEWTON_MAX_ITERATIONS + 1):
+            self._gradient(sim, dt)
+            gg, vv = self._dots(sim, [("gradient", "gradient"),
+                                      ("velocity_star", "velocity_star")], (0, 2))
+            if not math.isfinite(gg) and not line_search and not self._rested:
+                # v* itself inverts a particle (a hard impact at a large dt): linearize at
+                # the constrained components alone, free ones at rest (Stomakhin 2013's
+                # x_hat = x), where every state is the admissible state of t^n.
+                self._rest_free_components()
+                self._rested = True
+                continue
+            if not math.isfinite(gg):
+                raise SolverFailure(
+                    f"the implicit solve met an inadmissible material state (J, det b or tr b "
+                    f"<= 0: a non-finite gradient) at step {sim.step_index}, t={sim.time:.6g}. "
+                    f"Hint: lower simulation.max_dt or simulation.cfl, or use solver.mode = "
+                    f"'newton' (its line search keeps every state admissible).")
+            if reference is None:
+                # |M (v^n + dt g)|; a scene at rest without gravity falls back on |g_0|.
+                reference = math.sqrt(vv) if vv > 0.0 else math.sqrt(gg)
+            if line_search and gg <= (self.newton_tolerance * reference) ** 2:
+                newton_steps -= 1
+                break
+            self._v_grad[:] = -self._v_grad  # the right-hand side -P g (projected already)
+            # Linearized: the tolerance is relative to max(|b|, |M v*|) (see `_cg`); Newton
+            # stops on its own criterion first, so its CG solves relative to |b| alone.
+            floor = 0.0 if line_search else (self.tolerance * reference) ** 2
+            iterations, curved = self._cg(sim, dt, "gradient", floor)
+            cg_total += iterations
+            if not line_search:
+                self._admissible_step(sim, dt)
+                break
+            energy = self._line_search(sim, dt, energy, curved and iterations == 0)
+        else:
+            raise SolverFailure(
+                f"Newton did not converge in {NEWTON_MAX_ITERATIONS} iterations at step "
+                f"{sim.step_index}, t={sim.time:.6g} (|grad E| = {math.sqrt(gg):.3e}, target "
+                f"{self.newton_tolerance * reference:.3e}). Hint: lower simulation.max_dt or "
+                f"raise solver.newton_tolerance (now {self.newton_tolerance:g}).")
+        with sim.timers("solve_setup"):
+            # Walls and colliders once more: a node the solve pushed into an obstacle it was
+            # leaving at v* (free in the mask) is stopped like in the explicit step; a
+            # constrained node is unchanged by it.
+            sim.apply_grid_boundaries(sim.grid["velocity"], dt)
+        self.last_step = {"cg_iterations": cg_total, "newton_iterations": newton_steps,
+                          "halvings": self._halvings}
+        self._window.append((cg_total, newton_steps))
+
+    def _prepare(self, sim, dt: float) -> None:
+        """v* = (p + dt f_ext)/m + dt g, the unknowns' mask, the constraints at v*, the
+        initial guess v0 = v* with the boundary conditions applied, and particle scratch."""
+        grid, d = sim.grid, sim.dim
+        names = VECTORS + ("velocity_trial",)
+        if not self._declared:
+            for name in names:
+                grid.declare(name, VECTOR)
+            self._declared = True
+        flat = {name: grid[name].reshape(-1, d) for name in names + ("velocity",)}
+        self._v_velocity, self._v_star = flat["velocity"], flat["velocity_star"]
+        self._v_grad, self._v_x = flat["gradient"], flat["cg_x"]
+        self._flat = flat
+        mass = grid["mass"].reshape(-1)
+        self._mass = mass
+        impulse = grid["impulse"] if sim.split_force else grid["momentum"]
+        flip = sim.scheme == FLIP
+        update_velocity(mass, grid["momentum"].reshape(-1, d), impulse.reshape(-1, d),
+                        sim.split_force, sim.gravity[:d], dt, self._v_star,
+                        (grid["velocity_old"] if flip else grid["velocity_star"]).reshape(-1, d),
+                        flip)
+        # Unknowns: owned nodes with mass.
+        free = np.zeros(grid.shape)
+        owned = sim.domain.owned_slices(grid)
+        free[owned] = grid["mass"][owned] > 0.0
+        self._free = free.reshape(-1)
+        # Constraint directions at the trial velocity v*.
+        shape3 = tuple(grid.shape) + (1,) * (3 - d)
+        if self._shape3 != shape3:
+            self._shape3 = shape3
+            self._count = np.zeros(shape3, dtype=np.int64)
+            self._basis = np.zeros(shape3 + (3, 3))
+        count, basis = self._count, self._basis
+        count.fill(0)
+        star = grid["velocity_star"]
+        for condition in sim.boundaries:
+            condition.constrain(star, grid.origin, sim.dx, sim.domain_lo, sim.time, dt,
+                                grid["mass"], basis, count)
+        for clamp in sim.prescribed:
+            clamp.constrain(star, grid.origin, sim.dx, sim.domain_lo, sim.time, dt, grid,
+                            basis, count)
+        nodes = np.flatnonzero(count.reshape(-1))
+        self._nodes = nodes
+        self._node_basis = np.ascontiguousarray(basis.reshape(-1, 3, 3)[nodes])
+        self._node_count = np.ascontiguousarray(count.reshape(-1)[nodes])
+        self._v_velocity[:] = self._v_star
+        sim.apply_grid_boundaries(grid["velocity"], dt)
+        # Particle scratch and each on-grid material's slice.
+        p = sim.particles
+        if self._scratch_n < p.n:
+            n = p.capacity
+            self._L = np.zeros((n, d, d))
+            self._G = np.zeros((n, d, d))
+            self._dL = np.zeros((n, d, d))
+            self._dG = np.zeros((n, d, d))
+            self._scratch_n = n
+        self._ranges = [(0, p.n)] if sim._all_on_grid else \
+            [sim.group_slices[g] for g in sim._on_grid]
+        self._slices = [(sim.materials[g], sim.material_fields(g), *sim.group_slices[g])
+                        for g in sim._on_grid if sim.group_slices[g][1] > sim.group_slices[g][0]]
+
+    # -- grid-level pieces ------------------------------------------------------------------
+    def _project(self, name: str) -> None:
+        project(self._flat[name], self._free, self._nodes, self._node_basis, self._node_count)
+
+    def _dots(self, sim, pairs, weights=None):
+        with sim.timers("solve_dots"):
+            return sim.domain.dots(sim.grid, pairs, weights)
+
+    def _contract(self, sim, name: str, L: np.ndarray) -> None:
+        """L_p(u) for the grid vector ``name`` (its ghosts filled first)."""
+        grid = sim.grid
+        with sim.timers("solve_halo"):
+            sim.domain.fill_ghosts(grid, name)
+        with sim.timers("solve_contract"):
+            x = sim.particles["x"]
+            for start, stop in self._ranges:
+                if stop > start:
+                    CONTRACT[sim.dim](x[start:stop], grid[name], self._mls, sim._static_order,
+                                      sim.dinv_factor, sim.dx, sim.domain_lo, grid.origin,
+                                      L[start:stop])
+
+    def _scatter(self, sim, T: np.ndarray, name: str) -> None:
+        """grid[name] = sum_p T_p grad w_ip, summed to the owners."""
+        grid = sim.grid
+        with sim.timers("solve_scatter"):
+            out = grid[name]
+            out.fill(0.0)
+            x = sim.particles["x"]
+            for start, stop in self._ranges:
+                if stop > start:
+                    SCATTER_TENSOR[sim.dim](x[start:stop], T[start:stop], 1.0, self._mls,
+                                            sim._static_order, sim.dinv_factor, sim.dx,
+                                            sim.domain_lo, grid.origin, out)
+        with sim.timers("solve_halo"):
+            sim.domain.sum_ghosts_to_owners(grid, name)
+
+    def _gradient(self, sim, dt: float) -> None:
+        """grid "gradient" = P g at the current velocity; keeps L_p(v) for the Hessian."""
+        self._contract(sim, "velocity", self._L)
+        with sim.timers("solve_material"):
+            for material, fields, start, stop in self._slices:
+                try:
+                    material.implicit_gradient(fields, self._L[start:stop], dt,
+                                               self._G[start:stop])
+                except ZeroDivisionError:  # a degenerate state (det = 0): inadmissible
+                    self._G[start:stop] = math.nan
+        self._scatter(sim, self._G, "gradient")
+        with sim.timers("solve_vector"):
+            add_inertia(self._v_grad, self._mass, self._v_velocity, self._v_star, self._free)
+            self._project("gradient")
+
+    def _hessian(self, sim, dt: float, src: str, dst: str) -> None:
+        """grid[dst] = P H P grid[src] at the L of the last `_gradient`."""
+        self._contract(sim, src, self._dL)
+        with sim.timers("solve_material"):
+            for material, fields, start, stop in self._slices:
+                material.implicit_hessian(fields, self._L[start:stop], dt,
+                                          self._dL[start:stop], self._dG[start:stop])
+        self._scatter(sim, self._dG, dst)
+        with sim.timers("solve_vector"):
+            add_mass_times(self._flat[dst], self._mass, self._flat[src], self._free)
+            self._project(dst)
+
+    def _jacobi(self, sim, dt: float) -> None:
+        """grid "inverse_diagonal" = 1 / diag(H) on the unknowns (`inverse_diagonal`).
+
+        The material part needs K_p[a, b, c] = d^2 e_p / dL_ab dL_ac: d^2 Hessian products
+        per particle with the unit directions E_ac, then one scatter."""
+        d, n = sim.dim, sim.particles.n
+        out = self._flat["inverse_diagonal"]
+        if not self.jacobi:
+            inverse_diagonal(np.zeros_like(out), self._mass, self._free, out)
+            out *= self._mass[:, None]  # no preconditioner: the identity on the unknowns
+            return
+        K = np.empty((n, d, d, d))
+        with sim.timers("solve_material"):
+            for a in range(d):
+                for c in range(d):
+                    self._dL[:n] = 0.0
+                    self._dL[:n, a, c] = 1.0
+                    for material, fields, start, stop in self._slices:
+                        material.implicit_hessian(fields, self._L[start:stop], dt,
+                                                  self._dL[start:stop], self._dG[start:stop])
+                    K[:, a, :, c] = self._dG[:n, a, :]
+        grid = sim.grid
+        diagonal = grid["cg_w"]  # scratch
+        with sim.timers("solve_scatter"):
+            diagonal.fill(0.0)
+            x = sim.particles["x"]
+            for start, stop in self._ranges:
+                if stop > start:
+                    SCATTER_DIAGONAL[d](x[start:stop], K[start:stop], self._mls,
+                                        sim._static_order, sim.dinv_factor, sim.dx,
+                                        sim.domain_lo, grid.origin, diagonal)
+        with sim.timers("solve_halo"):
+            sim.domain.sum_ghosts_to_owners(grid, "cg_w")
+        inverse_diagonal(self._flat["cg_w"], self._mass, self._free, out)
+
+    def _precondition(self, src: str, dst: str) -> None:
+        multiply(self._flat["inverse_diagonal"].reshape(-1), self._flat[src].reshape(-1),
+                 self._flat[dst].reshape(-1))
+        self._project(dst)
+
+    # -- conjugate gradients ----------------------------------------------------------------
+    def _cg(self, sim, dt: float, rhs: str, floor: float = 0.0) -> tuple[int, bool]:
+        """Solve P H P x = b (b in grid[rhs], projected) into "cg_x" by preconditioned CG in
+        the Chronopoulos-Gear form: one Hessian product and one allreduce (of r.u, w.u,
+        r.r) per iteration. Stops at |r|^2 <= max(tolerance^2 |b|^2, floor); then checks the
+        true residual b - H x and restarts from x if it misses (at most `CG_RESTARTS`
+        times). Returns the iterations and whether it stopped on negative curvature
+        (p.Hp <= 0: x is kept as it was, a descent direction when non-zero).
+
+        The solve passes floor = (tolerance |M v*|)^2: a residual that small changes the
+        velocities by about tolerance |v*|, so the tolerance is relative to the larger of the
+        right-hand side and the momentum. Without the floor a body in free flight (b at
+        round-off, 1e-12 |M v*|) would have its round-off solved to 1e-6: hundreds of
+        iterations on a stiff crust for nothing."""
+        f = self._flat
+        x, r, u, w, p, s = (f[k].reshape(-1) for k in ("cg_x", "cg_r", "cg_u", "cg_w", "cg_p",
+                                                       "cg_s"))
+        b = f[rhs].reshape(-1)
+        x[:] = 0.0
+        r[:] = b
+        (bb,) = self._dots(sim, [(rhs, rhs)])
+        target = max(self.tolerance * self.tolerance * bb, floor)
+        if bb <= target:
+            return 0, False
+        self._jacobi(sim, dt)
+        iterations = restarts = 0
+        while True:
+            self._precondition("cg_r", "cg_u")
+            self._hessian(sim, dt, "cg_u", "cg_w")
+            gamma, delta, rr = self._dots(sim, [("cg_r", "cg_u"), ("cg_w", "cg_u"),
+                                                ("cg_r", "cg_r")])
+            first = True
+            while rr > target:
+                if iterations >= self.max_iterations or not math.isfinite(rr):
+                    self._fail(sim, rr, bb, iterations)
+                if first:
+                    beta, curvature = 0.0, delta
+                else:
+                    beta = gamma / gamma_old
+                    curvature = delta - beta * gamma / alpha
+                if not curvature > 0.0:
+                    self.negative_curvature += 1
+                    if not self._warned_curvature and sim.domain.rank == 0:
+                        log.warning("CG stopped on negative curvature at step %d (p.Hp = %.3e "
+                                    "after %d iterations); the energy is not convex there",
+                                    sim.step_index, curvature, iterations)
+                        self._warned_curvature = True
+                    return iterations, True
+                alpha = gamma / curvature
+                with sim.timers("solve_vector"):
+                    if first:
+                        p[:] = u
+                        s[:] = w
+                    else:
+                        xpby(u, beta, p)
+                        xpby(w, beta, s)
+                    axpy(alpha, p, x)
+                    axpy(-alpha, s, r)
+                    self._precondition("cg_r", "cg_u")
+                self._hessian(sim, dt, "cg_u", "cg_w")
+                gamma_old = gamma
+                gamma, delta, rr = self._dots(sim, [("cg_r", "cg_u"), ("cg_w", "cg_u"),
+                                                    ("cg_r", "cg_r")])
+                iterations += 1
+                first = False
+            # The recursively updated residual met the tolerance: check b - H x.
+            self._hessian(sim, dt, "cg_x", "cg_w")
+            with sim.timers("solve_vector"):
+                r[:] = b
+                axpy(-1.0, w, r)
+            (rr,) = self._dots(sim, [("cg_r", "cg_r")])
+            if rr <= target:
+                return iterations, False
+            if restarts >= CG_RESTARTS:
+                self._fail(sim, rr, bb, iterations)
+            restarts += 1
+
+    def _fail(self, sim, rr: float, bb: float, iterations: int) -> None:
+        residual = math.sqrt(rr / bb) if math.isfinite(rr) else math.nan
+        raise SolverFailure(
+            f"CG did not converge at step {sim.step_index}, t={sim.time:.6g}: relative "
+            f"residual {residual:.3e} after {iterations} iterations (solver.tolerance "
+            f"{self.tolerance:g}, solver.max_iterations {self.max_iterations}). Hint: lower "
+            f"simulation.max_dt or simulation.cfl, use solver.preconditioner = 'jacobi', or "
+            f"raise solver.max_iterations.")
+
+    # -- Newton (Gast 2015) -----------------------------------------------------------------
+    def _energy(self, sim, dt: float, name: str) -> float:
+        """E at grid velocity ``name``; +inf when a material finds the state inadmissible."""
+        self._contract(sim, name, self._dL)
+        local = 0.0
+        with sim.timers("solve_material"):
+            for material, fields, start, stop in self._slices:
+                try:
+                    local += material.implicit_energy(fields, self._dL[start:stop], dt)
+                except ZeroDivisionError:  # a degenerate state (det = 0): inadmissible
+                    local = math.inf
+        f = self._flat
+        with sim.timers("solve_vector"):
+            f["cg_w"][:] = f[name] - self._v_star
+            f["cg_w"] *= self._free[:, None]
+        (kinetic,) = self._dots(sim, [("cg_w", "cg_w")], (1,))
+        total = sim.domain.sum(float(local)) + 0.5 * kinetic
+        return total if math.isfinite(total) else math.inf
+
+    def _rest_free_components(self) -> None:
+        """Keep the constrained components of grid "velocity" (boundary values), zero the
+        free ones."""
+        v = self._v_velocity
+        free_part = v.copy()
+        project(free_part, self._free, self._nodes, self._node_basis, self._node_count)
+        v -= free_part
+
+    def _start_energy(self, sim, dt: float) -> float:
+        """E at the initial guess; when that is inadmissible, start from the constrained
+        components alone (free ones at rest), which moves nothing but the boundaries."""
+        energy = self._energy(sim, dt, "velocity")
+        if math.isfinite(energy):
+            return energy
+        self._rest_free_components()
+        energy = self._energy(sim, dt, "velocity")
+        if not math.isfinite(energy):
+            raise SolverFailure(
+                f"Newton: no admissible starting velocity at step {sim.step_index}, "
+                f"t={sim.time:.6g} (a material state is inadmissible at v* and at rest). "
+                f"Hint: lower simulation.max_dt or simulation.cfl.")
+        return energy
+
+    def _admissible_step(self, sim, dt: float) -> None:
+        """Linearized mode: v += dv, halved until every material state it makes is
+        admissible (E finite) once the boundary conditions have acted on it. A full step is
+        taken whenever it is admissible, so this changes nothing but the steps where one
+        Newton step would invert a particle (a hard impact at a large dt); those are counted
+        in ``last_step["halvings"]``."""
+        f = self._flat
+        trial = f["velocity_trial"]
+        start = self._v_velocity.copy()
+        alpha = 1.0
+        for halving in range(LINE_SEARCH_HALVINGS):
+            np.multiply(self._v_x, alpha, out=trial)
+            trial += start
+            # The walls and colliders act once more on the result (`solve`); check the
+            # velocity G2P will see.
+            sim.apply_grid_boundaries(sim.grid["velocity_trial"], dt)
+            if math.isfinite(self._energy(sim, dt, "velocity_trial")):
+                self._v_velocity[:] = trial
+                self._halvings = halving
+                self.halved_steps += halving > 0
+                return
+            alpha *= 0.5
+        raise SolverFailure(
+            f"no admissible velocity along the linearized step at step {sim.step_index}, "
+            f"t={sim.time:.6g}. Hint: lower simulation.max_dt or simulation.cfl, or use "
+            f"solver.mode = 'newton'.")
+
+    def _line_search(self, sim, dt: float, energy: float, steepest: bool) -> float:
+        """Backtracking from the full Newton step: halve until E decreases enough (Armijo);
+        E = +inf (inadmissible) always rejects. Returns the new energy."""
+        f = self._flat
+        direction = f["cg_x"]
+        if steepest:  # negative curvature at once: the preconditioned gradient direction
+            self._precondition("gradient", "cg_x")
+        (slope,) = self._dots(sim, [("cg_x", "gradient")])
+        slope = -slope  # "gradient" holds -P g now: slope = g . dx
+        if not slope < 0.0:
+            direction[:] = f["gradient"]
+            (slope,) = self._dots(sim, [("cg_x", "gradient")])
+            slope = -slope
+        trial = f["velocity_trial"]
+        # Start no further than a change of dx/dt in any node velocity (one cell of
+        # displacement): on an indefinite Hessian the CG direction can be far too long, and
+        # halving from 1 would not reach an admissible point.
+        largest = sim.domain.max(float(np.abs(direction).max()) if direction.size else 0.0)
+        alpha = min(1.0, sim.dx / (dt * largest)) if largest > 0.0 else 1.0
+        for _ in range(LINE_SEARCH_HALVINGS):
+            np.multiply(direction, alpha, out=trial)
+            trial += self._v_velocity
+            value = self._energy(sim, dt, "velocity_trial")
+            slack = 4.0 * np.finfo(float).eps * abs(energy)
+            if value <= energy + ARMIJO * alpha * slope + slack:
+                self._v_velocity[:] = trial
+                return value
+            alpha *= 0.5
+        raise SolverFailure(
+            f"Newton line search found no decrease at step {sim.step_index}, t={sim.time:.6g} "
+            f"after {LINE_SEARCH_HALVINGS} halvings (E = {energy:.6e}). Hint: lower "
+            f"simulation.max_dt or simulation.cfl.")
+
+
+def kinematic_speed(sim) -> float:
+    """Largest speed a collider or prescribed set can impose (|v| + |omega| r, r its reach
+    from its centre), for the advection time step: at t = 0 a body at rest held by a
+    twisting clamp has |v_p| = 0 but moves at the clamp's speed after one step."""
+    speed = 0.0
+    span = float(np.linalg.norm(np.asarray(sim.scene.domain_hi) - np.asarray(sim.scene.domain_lo)))
+    for condition in sim.boundaries:
+        if isinstance(condition, Collider):
+            size = condition.size
+            d = condition.dim
+            if condition.shape == HALF_SPACE:  # anywhere in the domain
+                reach = span
+            elif condition.shape == SPHERE:
+                reach = size[0]
+            elif condition.shape == BOX:
+                reach = float(np.linalg.norm(size[:d]))
+            else:  # cylinder
+                reach = math.hypot(size[0], size[1])
+            speed = max(speed, float(np.linalg.norm(condition.velocity))
+                        + float(np.linalg.norm(condition.omega)) * reach)
+    for clamp in sim.prescribed:
+        if isinstance(clamp, PrescribedSet):
+            corners = np.array([clamp.lower, clamp.upper])
+            reach = float(np.linalg.norm(np.abs(corners - clamp.centre0[: sim.dim]).max(axis=0)))
+            reach += 2.0 * sim.dx  # the support nodes the clamp moves
+            speed = max(speed, float(np.linalg.norm(clamp.velocity))
+                        + float(np.linalg.norm(clamp.omega)) * reach)
+    return speed

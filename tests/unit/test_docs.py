@@ -1,0 +1,77 @@
+"""The documentation stays true to the code it describes (each check is a drift that happened):
+the README lists every exit code, docs/scene-format.md counts the scenes in inputs/, the project
+cites no file outside the repository, comments name files that exist, and docs/ARCHITECTURE.md
+shows the current signatures of FrameWriter and rebalance."""
+
+from __future__ import annotations
+
+import inspect
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+UNITS = ("zero one two three four five six seven eight nine ten eleven twelve thirteen fourteen "
+         "fifteen sixteen seventeen eighteen nineteen").split()
+TENS = "_ _ twenty thirty forty fifty sixty seventy eighty ninety".split()
+
+
+def in_words(n: int) -> str:
+    """0-99 as docs/scene-format.md spells it ("twenty-five")."""
+    if n < 20:
+        return UNITS[n]
+    return TENS[n // 10] + ("" if n % 10 == 0 else "-" + UNITS[n % 10])
+
+
+def exit_codes() -> set[int]:
+    import hpcmpm.io.info
+    import hpcmpm.jobs
+    import hpcmpm.runner  # noqa: F401 - defines CheckpointedOnSignal
+    import hpcmpm.viz.series  # noqa: F401 - defines RenderError
+    from hpcmpm.errors import HpcmpmError
+
+    found, todo = set(), [HpcmpmError]
+    while todo:
+        cls = todo.pop()
+        found.add(cls.exit_code)
+        todo.extend(cls.__subclasses__())
+    return found - {1}  # the base class's code is never raised as such
+
+
+def test_readme_lists_every_exit_code():
+    text = (ROOT / "README.md").read_text()
+    paragraph = text[text.index("Exit codes:"):].split("\n\n")[0]
+    listed = {int(n) for n in re.findall(r"(?:^|[\s,:])(\d+) ", paragraph)}
+    assert exit_codes() <= listed, (exit_codes() - listed, paragraph)
+
+
+def test_scene_format_counts_the_scenes():
+    n = len(list((ROOT / "inputs").glob("*.toml")))
+    assert f"The {in_words(n)} scenes in `inputs/`" in (ROOT / "docs/scene-format.md").read_text()
+
+
+def test_no_file_cites_notes_outside_the_repository():
+    for path in [*ROOT.glob("scripts/*"), *ROOT.glob("docs/*.md"), *ROOT.glob("hpcmpm/**/*.py"),
+                 ROOT / "README.md"]:
+        if path.is_file():
+            assert "shared/notes" not in path.read_text(), path
+
+
+def test_errors_names_the_job_templates_that_exist():
+    text = (ROOT / "hpcmpm/errors.py").read_text()
+    for pattern in re.findall(r"jobs/\*[\w.]+", text):
+        assert list(ROOT.glob(pattern)), pattern
+
+
+def test_architecture_shows_current_signatures():
+    from hpcmpm.io.frames import FrameWriter
+    from hpcmpm.parallel.domain import Domain
+
+    text = (ROOT / "docs/ARCHITECTURE.md").read_text()
+    for cls, method in ((FrameWriter, "__init__"), (FrameWriter, "write"),
+                        (Domain, "rebalance")):
+        params = [p for p in inspect.signature(getattr(cls, method)).parameters if p != "self"]
+        name = cls.__name__ if method == "__init__" else method
+        shown = re.search(rf"`?{name}\(([^)]*)\)", text.replace("\n", " "))
+        assert shown, name
+        assert [a.split("=")[0].strip() for a in shown.group(1).split(",")] == params, \
+            (name, shown.group(1), params)

@@ -1,0 +1,329 @@
+"""The semi-implicit solve at the grid level (000 §3.4, §5.5, appendix A), with the test-only
+Neo-Hookean material of ``tests/implicit_material.py`` on random deformation states:
+Taylor remainders of E and of its gradient, symmetry of the Hessian-vector product, the force
+at L = 0 against the explicit P2G, CG against a dense solve, negative curvature and
+non-convergence, Newton to its tolerance, and the advection time step."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import implicit_material
+from hpcmpm.errors import InstabilityError
+from hpcmpm.kernels.transfer import SCATTER, static
+from hpcmpm.runner import initial_particles, make_domain
+from hpcmpm.scene import parse_scene
+from hpcmpm.simulation import Simulation
+
+
+
+@pytest.fixture(autouse=True, scope="module")
+def test_material():
+    with implicit_material.registered():
+        yield
+
+
+SCENE = """
+[simulation]
+dim = {dim}
+domain = {{ lower = {lo}, upper = {hi} }}
+dx = 0.1
+particles_per_cell = 2
+kernel = "{kernel}"
+transfer = "{transfer}"
+integrator = "semi_implicit"
+end_time = 1.0
+gravity = {gravity}
+
+[solver]
+mode = "{mode}"
+tolerance = {tolerance}
+preconditioner = "{preconditioner}"
+
+[output]
+every = 1.0
+
+[[materials]]
+name = "jelly"
+type = "test_neo_hookean"
+density = 1000.0
+E = 1.0e5
+nu = 0.3
+
+[[bodies]]
+name = "jelly"
+material = "jelly"
+shape = "box"
+lower = {body_lo}
+upper = {body_hi}
+
+[walls]
+default = "slip"
+"""
+
+
+def make_scene(dim=2, transfer="mls", kernel="quadratic", mode="linearized", tolerance=1e-6,
+               preconditioner="jacobi", size=0.3, gravity=None):
+    lo, hi = [0.0] * dim, [1.0] * dim
+    body_lo = [0.3] * dim
+    body_hi = [0.3 + size] * dim
+    gravity = gravity if gravity is not None else [0.0] * (dim - 1) + [-9.8]
+    text = SCENE.format(dim=dim, lo=lo, hi=hi, kernel=kernel, transfer=transfer, mode=mode,
+                        tolerance=tolerance, preconditioner=preconditioner, body_lo=body_lo,
+                        body_hi=body_hi, gravity=list(gravity))
+    return parse_scene(text)
+
+
+def grid_problem(seed=1, dt=5e-3, **kw):
+    """A simulation stopped just before its solve, its particles in random states (F near I,
+    velocities, affine C) so every term of E and its derivatives is non-trivial."""
+    scene = make_scene(**kw)
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    rng = np.random.default_rng(seed)
+    p, d = sim.particles, sim.dim
+    p["F"][:] = np.eye(d) + 0.15 * rng.standard_normal((p.n, d, d))
+    p["v"][:] = rng.standard_normal((p.n, d))
+    if "C" in p:
+        p["C"][:] = rng.standard_normal((p.n, d, d))
+    sim.sort_phase()
+    sim.fit_grid()
+    sim.scatter_mass_momentum()
+    sim.sum_ghosts()
+    integ = sim.integrator
+    integ._prepare(sim, dt)
+    return sim, integ, dt
+
+
+class Grid:
+    """E, grad E and H u of one prepared problem as functions of flat grid vectors."""
+
+    def __init__(self, sim, integ, dt):
+        self.sim, self.integ, self.dt = sim, integ, dt
+        self.f = integ._flat
+
+    def projected(self, u):
+        u = u.copy()
+        from hpcmpm.kernels.implicit import project
+
+        integ = self.integ
+        project(u, integ._free, integ._nodes, integ._node_basis, integ._node_count)
+        return u
+
+    def energy(self, v):
+        self.f["velocity"][:] = v
+        return self.integ._energy(self.sim, self.dt, "velocity")
+
+    def gradient(self, v):
+        self.f["velocity"][:] = v
+        self.integ._gradient(self.sim, self.dt)
+        return self.f["gradient"].copy()
+
+    def hessian(self, v, u):
+        self.gradient(v)
+        self.f["cg_u"][:] = u
+        self.integ._hessian(self.sim, self.dt, "cg_u", "cg_w")
+        return self.f["cg_w"].copy()
+
+
+def slopes(h, remainders):
+    return np.diff(np.log(remainders)) / np.diff(np.log(h))
+
+
+CASES = [(2, "mls", "quadratic"), (2, "apic", "cubic"), (3, "flip", "quadratic")]
+
+
+@pytest.mark.parametrize("dim, transfer, kernel", CASES)
+def test_taylor_remainders_of_energy_and_gradient(dim, transfer, kernel):
+    """E(v + h u) - E(v) - h g.u and g(v + h u) - g(v) - h H u are O(h^2): log-log slope
+    2 +- 0.1 over h = 2^-2 .. 2^-6 (h times a unit-size random direction; the remainders stay
+    far above round-off there)."""
+    sim, integ, dt = grid_problem(dim=dim, transfer=transfer, kernel=kernel)
+    grid = Grid(sim, integ, dt)
+    rng = np.random.default_rng(7)
+    v = grid.projected(rng.standard_normal(grid.f["velocity"].shape))
+    u = grid.projected(rng.standard_normal(v.shape))
+    E0, g0 = grid.energy(v), grid.gradient(v)
+    Hu = grid.hessian(v, u)
+    h = 0.5 ** np.arange(2, 7)
+    rE = [abs(grid.energy(v + t * u) - E0 - t * np.vdot(g0, u)) for t in h]
+    rg = [np.linalg.norm(grid.gradient(v + t * u) - g0 - t * Hu) for t in h]
+    assert np.all(np.abs(slopes(h, rE) - 2.0) < 0.1), slopes(h, rE)
+    assert np.all(np.abs(slopes(h, rg) - 2.0) < 0.1), slopes(h, rg)
+
+
+@pytest.mark.parametrize("dim, transfer, kernel", CASES)
+def test_hessian_product_is_symmetric(dim, transfer, kernel):
+    """u.Hw = w.Hu: H = M + sum_p B_p^T D^2e_p B_p with the same contraction B_p on both
+    sides (the scatter is the transpose of the contraction); equal to 1e-12 relative (a sum
+    of a few thousand terms of either sign, each exact to round-off)."""
+    sim, integ, dt = grid_problem(dim=dim, transfer=transfer, kernel=kernel)
+    grid = Grid(sim, integ, dt)
+    rng = np.random.default_rng(3)
+    v = grid.projected(rng.standard_normal(grid.f["velocity"].shape))
+    u = grid.projected(rng.standard_normal(v.shape))
+    w = grid.projected(rng.standard_normal(v.shape))
+    uHw, wHu = np.vdot(u, grid.hessian(v, w)), np.vdot(w, grid.hessian(v, u))
+    scale = np.linalg.norm(u) * np.linalg.norm(grid.hessian(v, w))
+    assert abs(uHw - wHu) <= 1e-12 * scale
+
+
+@pytest.mark.parametrize("transfer", ["mls", "flip"])
+def test_force_at_rest_is_the_explicit_p2g_force(transfer):
+    """At L = 0, G_p = dt V0 tau_p (tau = P F^T): sum_p G_p grad w_ip is minus the explicit
+    P2G impulse dt f_i for the gradient form and for MLS's affine form (Hu 2018 eq. 18).
+    Equal to 1e-12 relative: the same products summed in a different grouping."""
+    sim, integ, dt = grid_problem(dim=2, transfer=transfer)
+    p, grid, d = sim.particles, sim.grid, sim.dim
+    integ._L[: p.n] = 0.0
+    material = sim.materials[0]
+    fields = sim.material_fields(0)
+    material.implicit_gradient(fields, integ._L[: p.n], dt, integ._G[: p.n])
+    integ._scatter(sim, integ._G, "gradient")
+    tau = np.empty((p.n, d, d))
+    material.update_stress(dict(fields, tau=tau), dt)
+    mass, momentum, impulse = (np.zeros_like(grid[k]) for k in ("mass", "momentum", "momentum"))
+    SCATTER[d](p["x"], p["v"], p["C"] if "C" in p else np.zeros((1, d, d)), p["mass"], p["vol0"],
+               tau, static(sim.scheme), static(sim.order), sim.dinv_factor, sim.dx,
+               sim.domain_lo, grid.origin, dt, static(True), mass, momentum, impulse)
+    assert np.abs(impulse).max() > 0
+    assert np.allclose(grid["gradient"], -impulse, rtol=0, atol=1e-12 * np.abs(impulse).max())
+
+
+def dense_hessian(grid, v):
+    n = v.size
+    cols = []
+    free = np.flatnonzero(grid.projected(np.ones_like(v)).reshape(-1))
+    for k in free:
+        e = np.zeros(n)
+        e[k] = 1.0
+        cols.append(grid.hessian(v, e.reshape(v.shape)).reshape(-1)[free])
+    return np.array(cols).T, free
+
+
+@pytest.mark.parametrize("preconditioner", ["jacobi", "none"])
+def test_cg_solves_the_projected_system(preconditioner):
+    """CG at tolerance 1e-12 against numpy's dense solve of the same (assembled, projected)
+    Hessian: the relative difference is bounded by cond(H) * 1e-12 (cond ~ 1e2 here), so
+    1e-9 is a real check."""
+    sim, integ, dt = grid_problem(dim=2, size=0.2, tolerance=1e-12,
+                                  preconditioner=preconditioner, dt=2e-2)
+    grid = Grid(sim, integ, dt)
+    v = grid.f["velocity"].copy()
+    H, free = dense_hessian(grid, v)
+    assert np.allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+    rng = np.random.default_rng(5)
+    b = grid.projected(rng.standard_normal(v.shape))
+    grid.gradient(v)  # the Hessian at v
+    grid.f["gradient"][:] = b
+    iterations, curved = integ._cg(sim, dt, "gradient")
+    assert not curved and iterations > 5
+    expected = np.linalg.solve(H, b.reshape(-1)[free])
+    x = grid.f["cg_x"].reshape(-1)
+    assert np.abs(x[free] - expected).max() <= 1e-9 * np.abs(expected).max()
+    assert np.all(x[np.setdiff1d(np.arange(x.size), free)] == 0.0)  # masked entries stay 0
+
+
+def test_jacobi_reduces_cg_iterations():
+    """The exact diagonal of H as preconditioner takes fewer iterations than none on a stiff
+    step (dt far above the explicit limit): a property the thesis reports (000 §5.7)."""
+    counts = {}
+    for preconditioner in ("jacobi", "none"):
+        sim, integ, dt = grid_problem(dim=2, tolerance=1e-8, preconditioner=preconditioner,
+                                      dt=2e-2)
+        integ._gradient(sim, dt)
+        integ._flat["gradient"][:] *= -1.0
+        counts[preconditioner], _ = integ._cg(sim, dt, "gradient")
+    assert counts["jacobi"] < counts["none"], counts
+
+
+def test_negative_curvature_stops_and_is_reported(monkeypatch):
+    """A material whose Hessian is strongly negative makes H indefinite: CG stops at the
+    first p.Hp <= 0, reports it and counts it."""
+    sim, integ, dt = grid_problem(dim=2)
+    material = sim.materials[0]
+    monkeypatch.setattr(material, "implicit_hessian",
+                        lambda fields, L, dt, dL, dG: dG.__setitem__(slice(None), -1e6 * dL))
+    integ._gradient(sim, dt)
+    integ._flat["gradient"][:] *= -1.0
+    iterations, curved = integ._cg(sim, dt, "gradient")
+    assert curved and integ.negative_curvature == 1
+    assert integ.diagnostics()["cg_negative_curvature"] == 1.0
+
+
+def test_cg_that_does_not_converge_is_an_instability_error():
+    """max_iterations too small: InstabilityError (exit code 3) naming the step, the residual
+    and a hint; nothing is written to the particles."""
+    sim, integ, dt = grid_problem(dim=2, tolerance=1e-10, dt=2e-2)
+    integ.max_iterations = 2
+    x_before = sim.particles["x"].copy()
+    with pytest.raises(InstabilityError) as info:
+        integ.solve(sim, dt)
+    message = str(info.value)
+    assert info.value.exit_code == 3
+    assert "step 0" in message and "residual" in message and "Hint" in message
+    assert np.array_equal(sim.particles["x"], x_before)
+
+
+def test_newton_converges_to_its_tolerance():
+    """mode "newton" at a dt 40x the explicit limit: the result satisfies
+    |P grad E| <= newton_tolerance |M v*| (checked independently after the solve), with the
+    energy lower than at the start, and needs more than one Newton step (the problem is
+    nonlinear), where "linearized" stops after one."""
+    sim, integ, dt = grid_problem(dim=2, mode="newton", dt=2e-2)
+    grid = Grid(sim, integ, dt)
+    E_start = grid.energy(grid.f["velocity"].copy())
+    integ.solve(sim, dt)
+    assert integ.last_step["newton_iterations"] > 1
+    v = grid.f["velocity"].copy()
+    g = grid.gradient(v)
+    ref = np.sqrt(np.sum((integ._mass[:, None] * integ._v_star) ** 2 * integ._free[:, None]))
+    assert np.linalg.norm(g) <= integ.newton_tolerance * ref
+    assert grid.energy(v) < E_start
+
+
+def test_time_step_is_advective():
+    """dt from the advection bound alone: (v + |g| dt) dt = cfl dx; at rest with gravity
+    dt = sqrt(cfl dx / |g|); without gravity cfl dx / v; the elastic wave speed (here
+    sqrt(E/rho) ~ 10, explicit dt ~ 4e-3) does not enter."""
+    sim, integ, _ = grid_problem(dim=2)
+    cfl, dx = sim.scene.cfl, sim.dx
+    assert math.isclose(integ.stable_dt(sim, 0.0), math.sqrt(cfl * dx / 9.8), rel_tol=1e-12)
+    dt = integ.stable_dt(sim, 2.0)
+    assert math.isclose((2.0 + 9.8 * dt) * dt, cfl * dx, rel_tol=1e-12)
+    sim2, integ2, _ = grid_problem(dim=2, gravity=[0.0, 0.0])
+    assert math.isclose(integ2.stable_dt(sim2, 2.0), cfl * dx / 2.0, rel_tol=1e-12)
+
+
+def test_constraint_directions_of_walls():
+    """`Walls.constrain` at a trial velocity: sticky fixes every axis, slip the normal,
+    separate the normal only where the node moves into the wall; a corner gets the span of
+    both faces (orthonormal rows), nodes without mass nothing."""
+    from hpcmpm.boundaries import Walls
+    from hpcmpm.scene import WallFace
+
+    faces = [WallFace("sticky"), WallFace("separate"), WallFace("slip"), WallFace("slip")]
+    walls = Walls(faces, np.array([4, 4]))
+    shape = (6, 6)  # nodes -1 .. 4 per axis
+    origin = np.array([-1, -1])
+    velocity = np.zeros(shape + (2,))
+    velocity[5, :, 0] = 1.0  # block 5 = global node 4, the x_upper face: moving in (+x)
+    velocity[5, 2, 0] = -1.0  # moving away from that wall
+    mass = np.ones(shape)
+    mass[0, 2] = 0.0
+    count = np.zeros(shape + (1,), dtype=np.int64)
+    basis = np.zeros(shape + (1, 3, 3))
+    walls.constrain(velocity, origin, 0.25, np.zeros(2), 0.0, 0.01, mass, basis, count)
+    c = count[..., 0]
+    assert c[0, 3] == 2 and c[1, 3] == 2  # x_lower sticky: global nodes -1 and 0
+    assert c[0, 2] == 0  # no mass: not an unknown, nothing to fix
+    assert c[5, 3] == 1 and np.allclose(basis[5, 3, 0, 0], [-1.0, 0.0, 0.0])  # moving in
+    assert c[5, 2] == 0  # separate, moving away: free
+    assert c[3, 0] == 1 and np.allclose(np.abs(basis[3, 0, 0, 0]), [0.0, 1.0, 0.0])  # slip
+    assert c[5, 0] == 2  # corner: separate (moving in) and slip
+    q = basis[5, 0, 0, :2, :2]
+    assert np.allclose(q @ q.T, np.eye(2))
+    assert c[3, 3] == 0  # interior
