@@ -237,11 +237,17 @@ def dry_run(scene, comm) -> int:
     sim = Simulation(scene, domain)
     estimate = initial_particles(sim)
     counts = np.asarray(domain.allgather(int(sim.particles.n)), dtype=np.int64)
+    # With PD bonds the ranks are balanced by weight, not by count (Simulation.load_weights).
+    weights = sim.load_weights()
+    loads = None if weights is None else \
+        np.asarray(domain.allgather(int(weights.sum())), dtype=np.int64)
     rss = np.asarray(domain.allgather(peak_rss_bytes()), dtype=np.int64)
     if domain.rank == 0:
+        by_weight = "" if loads is None else \
+            f"; by load weight {loads.max() / max(loads.mean(), 1):.3f}"
         print(f"{scene.path}: dry run on {domain.size} rank(s): {int(counts.sum()):,} "
               f"particles, per rank min {counts.min():,} / max {counts.max():,} "
-              f"(imbalance {counts.max() / max(counts.mean(), 1):.3f})")
+              f"(imbalance {counts.max() / max(counts.mean(), 1):.3f}{by_weight})")
         print(f"memory estimate: {estimate.describe()}")
         print(f"peak RSS per rank (start-up): max {format_bytes(rss.max())}, "
               f"min {format_bytes(rss.min())}, mean {format_bytes(rss.mean())}; "
