@@ -56,6 +56,9 @@ def by_id(domain, p) -> dict:
     return {k: v[order] for k, v in merged.items()}
 
 
+# 2 ranks only: the 1-rank run is the reference inside the test (there is nothing to balance
+# on one rank), and at 4 ranks one cell column of the plate is 16 % of a rank's share, as
+# coarse as the effect tested (tests/mpi/test_pd_engine.py checks PD scenes on 1, 2, 4).
 @pytest.mark.parallel(ranks=[2])
 def test_pd_and_mpm_bodies_are_split_by_weight_and_match_one_rank():
     scene = parse_scene(TEXT, path="pd_load.toml")
