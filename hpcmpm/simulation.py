@@ -519,6 +519,9 @@ class Simulation:
             inertia)
         local[8] = sum(m.energy(self.material_fields(g)) for g, m in enumerate(self.materials)
                        if self.group_slices[g][1] > self.group_slices[g][0])
+        # Energy held outside the particle fields (peridynamic bonds); collective.
+        local[8] += sum(e.strain_energy(self) for e in self.extensions
+                        if hasattr(e, "strain_energy"))
         total = self.domain.sum(local)
         out = {
             "mass": total[0],
