@@ -837,12 +837,12 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
 
 
 def _check_materials_in_scene(c: Checker, scene: Scene) -> None:
-    """Each material's parameters against the rest of the scene (`Material.spec_problems`:
+    """Each material's parameters against the rest of the scene (`Material.scene_problems`:
     e.g. a peridynamic horizon below the particle spacing, a pre-crack outside the domain)."""
     from .materials import MATERIALS
 
     for i, spec in enumerate(scene.materials):
-        for problem in MATERIALS[spec.type].spec_problems(spec, scene):
+        for problem in MATERIALS[spec.type].scene_problems(spec, scene):
             key, _, what = problem.partition(": ")
             c.problem(f"materials[{i}].{key}", what)
 

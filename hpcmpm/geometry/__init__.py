@@ -214,8 +214,7 @@ def estimate_body_counts(scene: Scene) -> tuple[list[float], bool]:
             out.append(min(volume / np.float64(spacing) ** scene.dim, lat.size))
             exact = False
         elif body.shape == "cylinder":
-            out.append(min(np.pi * p["radius"] ** 2 * p["length"] / np.float64(spacing) ** 3,
-                           lat.size))
+            out.append(min(np.pi * p["radius"] ** 2 * p["length"] / np.float64(spacing) ** 3, lat.size))
             exact = False
         else:
             out.append(float(lat.size))

@@ -242,7 +242,7 @@ class Material:
         return problems + check_params(cls.parameters, params)
 
     @classmethod
-    def spec_problems(cls, spec, scene) -> list[str]:
+    def scene_problems(cls, spec, scene) -> list[str]:
         """Problems of a valid parameter set against the rest of the scene (dimension,
         spacing, domain, other materials), ``"key: what is wrong"`` each: the scene validator
         reports them with the TOML path, like the schema's (`hpcmpm.scene.parse_scene`).

@@ -104,8 +104,8 @@ class Peridynamic(Material):
         prm = self.params
         self.on_grid = prm["integration"] == "grid"
         E, nu, plane = prm["E"], prm["nu"], prm["plane"]
-        # The PMB Poisson ratio and the stress material: spec_problems (scene validator).
-        check_chapter5(prm, f"material {spec.name!r} ({self.name})")   # pd_models.py
+        where = f"material {spec.name!r} ({self.name})"
+        check_chapter5(prm, where)      # keys of the 003 ch. 5 models (pd_models.py)
         self.bulk = moduli.bulk_modulus(dim, E, nu, plane)
         self.mu = moduli.shear_modulus(E, nu)
         # Lamé pair of the same (3D or plane strain) solid, for the wave speed.
@@ -115,7 +115,7 @@ class Peridynamic(Material):
         self.delta = math.nan
 
     @classmethod
-    def spec_problems(cls, spec, scene) -> list[str]:
+    def scene_problems(cls, spec, scene) -> list[str]:
         """The issue's bad input that needs the scene (the scene validator reports each with
         its TOML path): a PMB Poisson ratio the dimension cannot represent, a horizon below
         one particle spacing, a pre-crack of the wrong dimension or outside the domain, a
