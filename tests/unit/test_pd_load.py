@@ -120,6 +120,16 @@ def test_bond_cost_script_smoke(monkeypatch, capsys):
     assert "c_b = " in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("flag", [[], ["--unweighted"]])
+def test_balance_bench_smoke(monkeypatch, capsys, flag):
+    """scripts/bench_pd_balance.py on one rank, coarse and short (the study runs it on 2)."""
+    monkeypatch.setattr(sys, "argv", ["bench_pd_balance.py", "--dx", "0.05", "--steps", "2",
+                                      "--warmup", "2", *flag])
+    runpy.run_path("scripts/bench_pd_balance.py", run_name="__main__")
+    out = capsys.readouterr().out
+    assert out.startswith("unweighted:" if flag else "weighted:") and "compute per rank" in out
+
+
 @pytest.mark.parametrize("model", ["bond_energy", "unknown"])
 def test_a_model_without_a_measured_cost_is_weighed_as_lps(model):
     assert bond_cost(3, model) == bond_cost(3, "lps")
