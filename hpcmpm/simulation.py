@@ -207,7 +207,9 @@ class Simulation:
         """Integer cost of each particle for the decomposition and rebalancing
         (`Domain.decompose`, `Domain.rebalance`): None (every particle costs the same)
         unless a step extension adds its particles' work (``add_load(sim, weights)``:
-        peridynamic bonds)."""
+        peridynamic bonds, pd/extension.py and pd/spb.py). Integers, and a particle's own
+        property, so the bisection's global sums are exact and rank-count independent; a
+        power of two per particle, so uniform weights cut exactly as the count does."""
         sources = [e for e in self.extensions if hasattr(e, "add_load")]
         if not sources:
             return None
