@@ -155,10 +155,14 @@ class Simulation:
         self.extensions: list = []
         self._force_sources: list = []
         self._after_g2p: list = []
-        # A material that works through a step extension (peridynamics) makes its own.
+        self._stress_hooks: list = []
+        # A material that works through a step extension (peridynamics, SPB-MPM) makes its
+        # own (None: one it shares was made already).
         for material in self.materials:
             if hasattr(material, "make_extension"):
-                self.add_extension(material.make_extension(self))
+                extension = material.make_extension(self)
+                if extension is not None:
+                    self.add_extension(extension)
         self.time = 0.0
         self.step_index = 0
         # Optional ``forcing(sim, dt)`` that adds ``dt * b`` to particle velocities before P2G:
@@ -185,6 +189,34 @@ class Simulation:
             self._force_sources.append(extension)
         if hasattr(extension, "after_g2p"):
             self._after_g2p.append(extension)
+        # SPB-MPM (003 eq. 6.10): ``stress_chunk(sim, g, start, stop, tau, dt)`` sees each
+        # chunk's Kirchhoff stress between the material kernel and P2G (and may zero rows
+        # of it); ``grid_scattered`` names scalar grid fields it scatters there, summed to
+        # owners with the mass.
+        if hasattr(extension, "stress_chunk"):
+            self._stress_hooks.append(extension)
+        for name in getattr(extension, "grid_scattered", ()):
+            self.grid.declare(name, SCALAR)
+            self._scattered.append(name)
+
+    # Load-balance weight of a particle with no work besides the MPM step, in the integer
+    # units of `load_weights` (1/64 resolves the measured cost of a PD half-bond, pd/load.py).
+    particle_weight = 64
+
+    def load_weights(self) -> np.ndarray | None:
+        """Integer cost of each particle for the decomposition and rebalancing
+        (`Domain.decompose`, `Domain.rebalance`): None (every particle costs the same)
+        unless a step extension adds its particles' work (``add_load(sim, weights)``:
+        peridynamic bonds, pd/extension.py and pd/spb.py). Integers, and a particle's own
+        property, so the bisection's global sums are exact and rank-count independent; a
+        power of two per particle, so uniform weights cut exactly as the count does."""
+        sources = [e for e in self.extensions if hasattr(e, "add_load")]
+        if not sources:
+            return None
+        weights = np.full(self.particles.n, self.particle_weight, dtype=np.int64)
+        for source in sources:
+            source.add_load(self, weights)
+        return weights
 
     # -- the step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:
@@ -307,6 +339,9 @@ class Simulation:
                     fields = {name: a[start:stop] for name, a in arrays.items()}
                     fields["tau"] = tau
                     material.update_stress(fields, dt)
+                for hook in self._stress_hooks:
+                    with t("spb_energy"):
+                        hook.stress_chunk(self, g, start, stop, tau, dt)
                 with t("p2g"):
                     SCATTER[self.dim](
                         x[start:stop], v[start:stop],
@@ -503,6 +538,9 @@ class Simulation:
             inertia)
         local[8] = sum(m.energy(self.material_fields(g)) for g, m in enumerate(self.materials)
                        if self.group_slices[g][1] > self.group_slices[g][0])
+        # Energy held outside the particle fields (peridynamic bonds); collective.
+        local[8] += sum(e.strain_energy(self) for e in self.extensions
+                        if hasattr(e, "strain_energy"))
         total = self.domain.sum(local)
         out = {
             "mass": total[0],

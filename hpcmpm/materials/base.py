@@ -226,17 +226,37 @@ class Material:
         # One line per particle whose state became unrecoverable in a kernel (the kernel
         # also writes NaN into its J or F, which the health check finds).
         self.failures: list[str] = []
+        # SPB-MPM (003 ch. 6): a `failure` table adds fields and a step extension.
+        attach_failure(self)
 
     @classmethod
     def parameter_problems(cls, params: dict[str, Any]) -> list[str]:
         """Problems with a scene's parameters: the schema check, plus any rule between keys a
         model adds (e.g. "mu and lambda, or E and nu"); `validate_params` and __init__ use
         it."""
-        return check_params(cls.parameters, params)
+        params = dict(params)
+        problems = []
+        if "failure" in params and "failure" not in cls.parameters:
+            problems.append(no_pd_stress_problem(cls.name))   # SPB-MPM, materials/failure.py
+            params.pop("failure")
+        return problems + check_params(cls.parameters, params)
+
+    @classmethod
+    def scene_problems(cls, spec, scene) -> list[str]:
+        """Problems of a valid parameter set against the rest of the scene (dimension,
+        spacing, domain, other materials), ``"key: what is wrong"`` each: the scene validator
+        reports them with the TOML path, like the schema's (`hpcmpm.scene.parse_scene`).
+        None by default."""
+        return []
 
     def configure(self, scene) -> None:
         """Called once the scene is known (grid spacing, time-step limits): a model that
         needs them reads them here, and raises SceneError for a combination it cannot run."""
+
+    def side_bytes_per_particle(self) -> int:
+        """Bytes a particle of this material holds outside the particle fields (peridynamic
+        bonds), for the start-up memory estimate; 0 by default. Call after `configure`."""
+        return 0
 
     @property
     def volumetric(self) -> bool:
@@ -320,3 +340,10 @@ class ElasticMaterial(Material):
         """sum_p vol0_p psi(F_p)."""
         return float(self.energy_kernels[self.dim](fields["F"], fields["vol0"],
                                                    *self.kernel_moduli()))
+
+
+# SPB-MPM (003 ch. 6): the elastic models can turn into peridynamics (materials/failure.py,
+# which builds on Param above, hence the import at the end).
+from .failure import SPB_FAILURE, attach_failure, no_pd_stress_problem  # noqa: E402
+
+ElasticMaterial.parameters = {**ElasticMaterial.parameters, "failure": SPB_FAILURE}

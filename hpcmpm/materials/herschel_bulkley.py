@@ -54,7 +54,7 @@ class HerschelBulkley(LeftCauchyGreenMaterial):
         self.eta = self.params["flow_consistency"]
         self._init_flow_update()
 
-    def scene_problems(self, scene) -> list[str]:
+    def run_problems(self, scene) -> list[str]:
         """The flow update against the integrator and dimension (`flow_update_problems`)."""
         return self.flow_update_problems(scene)
 

@@ -43,6 +43,7 @@ from numba import njit
 from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, YOUNG, Material, Param, lame
 from .decompositions import v_diag_vt, polar2, polar3, svd2, svd3
+from .failure import SPB_FAILURE
 from .implicit import COROTATED, ImplicitF
 from .fixed_corotated import corotated_psi_2d, corotated_psi_3d, corotated_tau_2d, corotated_tau_3d
 from .tensors import load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
@@ -159,6 +160,7 @@ class Snow(ImplicitF, Material):
         "max_exponent": Param(0.0, 700.0, required=False, default=None, low_inclusive=True,
                               doc="cap on xi (1 - Jp) in the hardening factor so exp() stays "
                                   "finite; default |xi|"),
+        "failure": SPB_FAILURE,
     }
     fields = {"Fp": FieldSpec(TENSOR, "f8", "identity"), "Jp": FieldSpec(SCALAR, "f8", 1.0)}
     implicit_model = COROTATED  # elastic at the current F_E; the clamp acts after the solve

@@ -33,7 +33,7 @@ class VonMises(LeftCauchyGreenMaterial):
         self.sigma_y = self.params["yield_strain"]
         self._init_flow_update()
 
-    def scene_problems(self, scene) -> list[str]:
+    def run_problems(self, scene) -> list[str]:
         """The flow update against the integrator and dimension (`flow_update_problems`)."""
         return self.flow_update_problems(scene)
 

@@ -38,4 +38,7 @@ class ExplicitIntegrator:
         dt = sim.scene.cfl * sim.dx / speed if speed > 0 else math.inf
         for material in sim.materials:
             dt = min(dt, material.dt_limit(sim.dx))
+        for extension in sim.extensions:      # e.g. the PD bound of SPB-MPM's bonds
+            if hasattr(extension, "dt_limit"):
+                dt = min(dt, extension.dt_limit(sim))
         return dt

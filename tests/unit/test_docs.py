@@ -10,9 +10,16 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-NUMBERS = dict(enumerate("zero one two three four five six seven eight nine ten eleven twelve "
-                         "thirteen fourteen fifteen sixteen seventeen eighteen nineteen "
-                         "twenty".split()))
+UNITS = ("zero one two three four five six seven eight nine ten eleven twelve thirteen fourteen "
+         "fifteen sixteen seventeen eighteen nineteen").split()
+TENS = "_ _ twenty thirty forty fifty sixty seventy eighty ninety".split()
+
+
+def in_words(n: int) -> str:
+    """0-99 as docs/scene-format.md spells it ("twenty-five")."""
+    if n < 20:
+        return UNITS[n]
+    return TENS[n // 10] + ("" if n % 10 == 0 else "-" + UNITS[n % 10])
 
 
 def exit_codes() -> set[int]:
@@ -39,7 +46,7 @@ def test_readme_lists_every_exit_code():
 
 def test_scene_format_counts_the_scenes():
     n = len(list((ROOT / "inputs").glob("*.toml")))
-    assert f"The {NUMBERS[n]} scenes in `inputs/`" in (ROOT / "docs/scene-format.md").read_text()
+    assert f"The {in_words(n)} scenes in `inputs/`" in (ROOT / "docs/scene-format.md").read_text()
 
 
 def test_no_file_cites_notes_outside_the_repository():

@@ -1,0 +1,154 @@
+"""The ``failure`` table of a material: SPB-MPM (003 ch. 6), MPM particles that become
+peridynamic where the grid energy exceeds a threshold.
+
+    [[materials]]
+    type = "fixed_corotated"  ...
+    failure = { model = "spb", grid_energy = 2.0e3, bond_energy = 1.5 }
+
+Keys (`SPB_SCHEMA`): ``grid_energy`` G_EE (> 0; a node is flagged when G_i >= G_EE, eq. 6.10),
+``bond_energy`` G_c (> 0, inf: bonds never break by energy; eq. 6.12), ``energy``
+("stress_squared" as printed, or "tensile_energy"), ``coupling`` ("exclusive": PD particles
+scatter mass and momentum but no stress, the default chosen by the patch test; "additive": the
+PD force on top of the MPM stress, as Alg. 3 prints), ``bond_failure`` ("energy" eq. 6.11 as
+printed, "work" the accumulated work, "stretch" eq. 4.8 with ``critical_stretch``),
+``influence`` ("constant" omega = 1, or "linear" omega = |X|/delta as eq. 6.13 prints),
+``horizon`` (delta in particle spacings, default 3.015), ``stabilization`` (Silling 2017 zero-energy-mode control, times the PMB micromodulus),
+``max_bond_stretch`` (every bond breaks beyond it; sets the PD halo reach).
+
+A material takes part when its class lists ``"failure": SPB_FAILURE`` in ``parameters`` and can
+give a stress for peridynamics at a deformation gradient F^PD (`pd_stress`): the elastic models
+and snow (F_E = F^PD F_P^-1). Any other material with a ``failure`` table is a one-line scene
+error (`no_pd_stress_problem`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..state import SCALAR, VECTOR, FieldSpec
+from .base import Param, choice, table
+
+COUPLINGS = ("exclusive", "additive")
+DEFAULT_COUPLING = "exclusive"   # the patch test (tests/verification/test_spb_coupled.py)
+
+SPB_SCHEMA = {
+    "model": choice(("spb",), doc="failure model: 'spb' (003 ch. 6)"),
+    "grid_energy": Param(0.0, math.inf, doc="G_EE: grid energy release that converts a cell "
+                                             "to peridynamics (eq. 6.10), > 0"),
+    "bond_energy": Param(0.0, math.inf, high_inclusive=True,
+                         doc="G_c: energy release rate of the bonds (eq. 6.12); inf: none"),
+    "energy": choice(("stress_squared", "tensile_energy"), "stress_squared",
+                     doc="Phi of eq. 6.10: sigma+:sigma+ or the tensile strain energy"),
+    "coupling": choice(COUPLINGS, DEFAULT_COUPLING,
+                       doc="exclusive: PD particles carry no MPM stress; additive: Alg. 3"),
+    "bond_failure": choice(("energy", "work", "stretch"), "energy",
+                           doc="eq. 6.11 as printed, accumulated work, or eq. 4.8"),
+    "critical_stretch": Param(0.0, math.inf, required=False, default=None,
+                              doc="s0 of eq. 4.8 (bond_failure = 'stretch')"),
+    "influence": choice(("constant", "linear"), "constant",
+                        doc="omega(|X|): 1, or |X|/delta (eq. 6.13 as printed)"),
+    "horizon": Param(1.0, math.inf, required=False, default=3.015, low_inclusive=True,
+                     doc="delta in particle spacings"),
+    "stabilization": Param(0.0, math.inf, required=False, default=0.1, low_inclusive=True,
+                           doc="zero-energy-mode penalty, times the PMB micromodulus"),
+    "max_bond_stretch": Param(0.0, math.inf, required=False, default=1.0,
+                              doc="bonds stretched beyond it break (sets the halo reach)"),
+}
+SPB_FAILURE = table(SPB_SCHEMA, doc="SPB-MPM failure (003 ch. 6)")
+
+# Particle fields of an SPB material: reference positions (NaN until the first step sets
+# them), the energy history EE_p, the model (0 MPM, 1 PD) and the damage phi.
+SPB_FIELDS = {
+    "x0": FieldSpec(VECTOR, "f8", math.nan),
+    "EE": FieldSpec(SCALAR, "f8", 0.0),
+    "model": FieldSpec(SCALAR, "i1", 0),
+    "damage": FieldSpec(SCALAR, "f8", 0.0),
+}
+
+
+def no_pd_stress_problem(type_name: str) -> str:
+    return (f"failure: material type {type_name!r} has no stress for peridynamics "
+            f"(SPB-MPM needs a deformation-gradient model: an elastic model or snow)")
+
+
+def attach_failure(material) -> None:
+    """Called by Material.__init__: an SPB material declares its extra fields and the step
+    extension that converts and evolves its PD particles (hpcmpm/pd/spb.py)."""
+    spec = material.params.get("failure") if "failure" in material.parameters else None
+    material.failure = spec
+    if spec is None:
+        return
+    problems = []
+    if spec["bond_failure"] == "stretch" and spec["critical_stretch"] is None:
+        problems.append("failure.critical_stretch: missing (bond_failure = 'stretch')")
+    if problems:
+        from ..errors import SceneError
+
+        raise SceneError([f"material {material.spec.name!r} ({material.name}): {p}"
+                          for p in problems])
+    material.fields = {**type(material).fields, **SPB_FIELDS}
+    material.make_extension = _make_extension
+
+
+def _make_extension(sim):
+    """The scene's one SPB extension (shared by all its SPB materials), or None when
+    another SPB material already made it."""
+    from ..pd.spb import SPBExtension
+
+    if any(isinstance(e, SPBExtension) for e in sim.extensions):
+        return None
+    return SPBExtension(sim)
+
+
+def pd_stress(material, fields: dict, F: np.ndarray, tau: np.ndarray) -> None:
+    """Kirchhoff stress tau (k, d, d) of ``material`` at the PD deformation gradients F
+    (k, d, d) of particles whose fields (rows gathered into ``fields``) hold the rest of
+    their state (003 Alg. 3 line 15 as corrected: sigma^PD from the particle's own material).
+    Snow evaluates its elastic part F_E = F^PD F_P^-1 with its hardening."""
+    from .base import ElasticMaterial
+    from .snow import Snow
+
+    if hasattr(material, "pd_stress"):
+        material.pd_stress(fields, F, tau)
+    elif isinstance(material, ElasticMaterial):
+        material.stress_kernels[material.dim](F, tau, *material.kernel_moduli())
+    elif isinstance(material, Snow):
+        FE = np.empty_like(F)
+        times_inverse(F, np.ascontiguousarray(fields["Fp"]), FE)
+        material._stress(FE, np.ascontiguousarray(fields["Jp"]), tau, material.mu,
+                         material.lam, material.xi, material.max_exponent)
+    else:
+        raise TypeError(no_pd_stress_problem(material.name))
+
+
+@njit(cache=True)
+def times_inverse(A, B, out):
+    """out_p = A_p B_p^-1 for (n, d, d) stacks, d = 2 or 3 (snow's F_E = F^PD F_P^-1)."""
+    d = A.shape[1]
+    for p in range(A.shape[0]):
+        if d == 2:
+            det = B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]
+            i00, i01 = B[p, 1, 1] / det, -B[p, 0, 1] / det
+            i10, i11 = -B[p, 1, 0] / det, B[p, 0, 0] / det
+            for r in range(2):
+                a0, a1 = A[p, r, 0], A[p, r, 1]
+                out[p, r, 0] = a0 * i00 + a1 * i10
+                out[p, r, 1] = a0 * i01 + a1 * i11
+        else:
+            c00 = B[p, 1, 1] * B[p, 2, 2] - B[p, 1, 2] * B[p, 2, 1]
+            c01 = B[p, 1, 2] * B[p, 2, 0] - B[p, 1, 0] * B[p, 2, 2]
+            c02 = B[p, 1, 0] * B[p, 2, 1] - B[p, 1, 1] * B[p, 2, 0]
+            det = B[p, 0, 0] * c00 + B[p, 0, 1] * c01 + B[p, 0, 2] * c02
+            inv = ((c00 / det, (B[p, 0, 2] * B[p, 2, 1] - B[p, 0, 1] * B[p, 2, 2]) / det,
+                    (B[p, 0, 1] * B[p, 1, 2] - B[p, 0, 2] * B[p, 1, 1]) / det),
+                   (c01 / det, (B[p, 0, 0] * B[p, 2, 2] - B[p, 0, 2] * B[p, 2, 0]) / det,
+                    (B[p, 0, 2] * B[p, 1, 0] - B[p, 0, 0] * B[p, 1, 2]) / det),
+                   (c02 / det, (B[p, 0, 1] * B[p, 2, 0] - B[p, 0, 0] * B[p, 2, 1]) / det,
+                    (B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]) / det))
+            for r in range(3):
+                for c in range(3):
+                    out[p, r, c] = (A[p, r, 0] * inv[0][c] + A[p, r, 1] * inv[1][c]
+                                    + A[p, r, 2] * inv[2][c])
