@@ -39,9 +39,9 @@ pd_jelly_stretch_3d    -  damage  -1
 kalthoff_winkler_2d    -  damage  -1
 ibmpm_bar_2d           -  v:x     -1
 ibmpm_disk_impact_2d   -  damage  -1
-ibmpm_ball_board_3d    -  damage  -1
+ibmpm_ball_board_3d    -  speed   -1
 ibmpm_wall_fracture_2d -  damage  -1
-ibmpm_cream_pie_2d     -  damage  -1
+ibmpm_cream_pie_2d     -  damage  9
 spb_stretched_bar_2d   -  damage  -1
 spb_chocolate_drop_3d  -  damage  -1
 cu_shock_column_2d     -  pressure -1
