@@ -91,6 +91,15 @@ class ImpactMaterial(Material):
                                          self.shear_term, *self.volumetric_response.args,
                                          *self.viscosity_args()))
 
+    def pd_stress(self, fields, F, tau) -> None:
+        """SPB-MPM's sigma^PD (003 Alg. 3 line 15, corrected): the particle's own stress
+        from its own state (tau = J sigma; shock: the deviator of F_E and the MPM pressure,
+        "reuse the MPM pressure" of 003 §7.2.2; j2: s - (p + q) I), so the bonds carry the
+        stress the material has. These models keep no total F to evaluate at F^PD: the state
+        follows the grid's L, the PD deformation gradient F enters through the correspondence
+        force (P = tau F^-T). ``fields`` holds the PD rows' state and their stored L."""
+        self.update_stress({**fields, "tau": tau}, 0.0)
+
     def energy(self, fields) -> float:
         """sum_p vol0_p E_p: the internal energy (elastic and dissipated) of the slice."""
         return float(np.dot(fields["vol0"], fields["E"]))
