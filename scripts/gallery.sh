@@ -22,6 +22,8 @@ disks_2d          1.1    speed      -1
 jelly_cube_3d     0.4    speed      -1
 snow_block_3d     0.15   Jp         -1
 sponge_twist_3d   0.5    speed      -1
+gelatin_bullet_3d -      pressure   -1
+watermelon_3d     -      model      -1
 '
 
 line_of() { awk -v s="$1" '$1 == s { print; exit }' <<<"$TABLE"; }
