@@ -14,7 +14,7 @@ import pytest
 from hpcmpm.errors import SceneError
 from hpcmpm.parallel import Communicator
 from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain
-from hpcmpm.scene import parse_scene
+from hpcmpm.scene import load_scene, parse_scene
 from hpcmpm.simulation import Simulation
 
 SHOCK = 'type = "shock"\nE = 100.0\nnu = 0.3\neos = { type = "mie_gruneisen", c0 = 10.0 }'
@@ -43,7 +43,10 @@ upper = [0.7, 0.7]
 
 
 def build(text, name="<s>"):
-    scene = parse_scene(text, name)
+    return build_scene(parse_scene(text, name))
+
+
+def build_scene(scene):
     sim = Simulation(scene, make_domain(scene, Communicator()))
     initial_particles(sim)
     return sim
@@ -270,3 +273,18 @@ def test_tensile_energy_needs_a_shear_modulus():
                                  energy="tensile_energy", model=model), "s.toml")
     lines = str(err.value).splitlines()
     assert len(lines) == 1 and "materials[0].failure.energy: 'tensile_energy'" in lines[0]
+
+
+def test_gelatin_scene_runs_coarse():
+    """inputs/gelatin_bullet_3d.toml at dx = 0.02 (1/4 of its resolution) to 1e-4: the bullet
+    (j2) enters the shock-model gelatin, which is compressed ahead of it (p > 0) and decelerates
+    it, every state finite. A smoke run of the scene's combination, not a measurement."""
+    sim = build_scene(load_scene("inputs/gelatin_bullet_3d.toml",
+                                 ["simulation.dx=0.02", "simulation.end_time=1e-4"]))
+    run(sim, 1e-4)
+    p = sim.particles
+    bullet = p["group"] == 1
+    assert np.isfinite(p["J"]).all() and np.isfinite(p["v"]).all()
+    assert p["x"][bullet, 0].max() > 0.1                     # inside the block (x >= 0.1)
+    assert 0 < p["v"][bullet, 0].mean() < 800.0               # slowed, not stopped
+    assert p["pressure"][~bullet].max() > 0.0
