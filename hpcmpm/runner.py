@@ -182,7 +182,8 @@ class Runner:
     def maybe_rebalance(self) -> None:
         spec = self.sim.scene.parallel
         if self.domain.size > 1 and self.sim.step_index % spec.rebalance_every == 0:
-            if self.domain.rebalance(self.sim.particles, spec.rebalance_threshold):
+            if self.domain.rebalance(self.sim.particles, spec.rebalance_threshold,
+                                     self.sim.load_weights()):
                 self.sim.request_sort()
 
     # -- output ----------------------------------------------------------------------------
@@ -432,7 +433,7 @@ def restore_simulation(ckpt: str, comm: Communicator, end_time: float | None):
         pending = meta.get("needs_sort")
         sim.restore_order_state(True if pending is None else bool(pending[domain.rank]))
     else:
-        domain.decompose(sim.particles)
+        domain.decompose(sim.particles, weights=sim.load_weights())
     sim.time = float(meta["time"])
     sim.step_index = int(meta["step"])
     for extension in sim.extensions:

@@ -831,9 +831,24 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)
-    return Scene(path=file, text=tomli_w.dumps(raw), output=output, materials=materials,
-                 bodies=bodies, walls=walls, colliders=colliders, prescribed=prescribed,
-                 parallel=parallel, solver=solver, **sim)
+    scene = Scene(path=file, text=tomli_w.dumps(raw), output=output, materials=materials,
+                  bodies=bodies, walls=walls, colliders=colliders, prescribed=prescribed,
+                  parallel=parallel, solver=solver, **sim)
+    _check_materials_in_scene(c, scene)
+    if c.problems:
+        raise SceneError(c.problems)
+    return scene
+
+
+def _check_materials_in_scene(c: Checker, scene: Scene) -> None:
+    """Each material's parameters against the rest of the scene (`Material.scene_problems`:
+    e.g. a peridynamic horizon below the particle spacing, a pre-crack outside the domain)."""
+    from .materials import MATERIALS
+
+    for i, spec in enumerate(scene.materials):
+        for problem in MATERIALS[spec.type].scene_problems(spec, scene):
+            key, _, what = problem.partition(": ")
+            c.problem(f"materials[{i}].{key}", what)
 
 
 def _resolve_mesh_paths(raw: dict, bodies) -> None:

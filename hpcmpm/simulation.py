@@ -204,6 +204,25 @@ class Simulation:
             self.grid.declare(name, SCALAR)
             self._scattered.append(name)
 
+    # Load-balance weight of a particle with no work besides the MPM step, in the integer
+    # units of `load_weights` (1/64 resolves the measured cost of a PD half-bond, pd/load.py).
+    particle_weight = 64
+
+    def load_weights(self) -> np.ndarray | None:
+        """Integer cost of each particle for the decomposition and rebalancing
+        (`Domain.decompose`, `Domain.rebalance`): None (every particle costs the same)
+        unless a step extension adds its particles' work (``add_load(sim, weights)``:
+        peridynamic bonds, pd/extension.py and pd/spb.py). Integers, and a particle's own
+        property, so the bisection's global sums are exact and rank-count independent; a
+        power of two per particle, so uniform weights cut exactly as the count does."""
+        sources = [e for e in self.extensions if hasattr(e, "add_load")]
+        if not sources:
+            return None
+        weights = np.full(self.particles.n, self.particle_weight, dtype=np.int64)
+        for source in sources:
+            source.add_load(self, weights)
+        return weights
+
     # -- the step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:
         """Advance by ``dt`` with the scene's integrator (explicit: 000 §3.3, Fig. 3.1)."""
@@ -527,6 +546,9 @@ class Simulation:
             inertia)
         local[8] = sum(m.energy(self.material_fields(g)) for g, m in enumerate(self.materials)
                        if self.group_slices[g][1] > self.group_slices[g][0])
+        # Energy held outside the particle fields (peridynamic bonds); collective.
+        local[8] += sum(e.strain_energy(self) for e in self.extensions
+                        if hasattr(e, "strain_energy"))
         total = self.domain.sum(local)
         out = {
             "mass": total[0],

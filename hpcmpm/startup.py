@@ -48,11 +48,16 @@ class MemoryEstimate:
     exact: bool               # the count is exact (counted) or from the shapes
     bytes_per_particle: int   # fields, spare capacity and scratch
     per_rank: int             # bytes on the busiest rank (within the rebalance threshold)
+    side_per_rank: int = 0    # of which held outside the fields (peridynamic bonds)
+    side_note: str = ""       # what the side bytes are, e.g. "36 half-bonds per particle"
+    side_key: str = ""        # the scene key that sets them, e.g. "materials[0].horizon"
 
     def describe(self) -> str:
         about = "" if self.exact else "about "
+        side = f" + {format_bytes(self.side_per_rank)} for {self.side_note}" \
+            if self.side_per_rank else ""
         return (f"{about}{self.particles:,} particles, {format_bytes(self.per_rank)} per rank "
-                f"on {self.ranks} rank(s) ({self.bytes_per_particle} B/particle + "
+                f"on {self.ranks} rank(s) ({self.bytes_per_particle} B/particle{side} + "
                 f"{format_bytes(BASE_BYTES)} per process)")
 
 
@@ -73,17 +78,54 @@ def particle_bytes(scene) -> int:
     return int(SPARE_FACTOR * fields + SCRATCH_BYTES)
 
 
-def estimate_memory(scene, count: int, ranks: int, exact: bool) -> MemoryEstimate:
+def side_bytes(scene, body_counts) -> tuple[float, str, str]:
+    """Bytes held outside the particle fields (`Material.side_bytes_per_particle`: the
+    peridynamic bonds, estimated from an interior family before anything is allocated) for
+    ``body_counts`` particles per body. Returns (bytes, note, key) with the note and the
+    scene key of the material that holds the most."""
+    from .materials import make_material
+
+    materials = []
+    for spec in scene.materials:
+        material = make_material(spec, scene.dim)
+        material.configure(scene)
+        materials.append(material)
+    per_material = np.zeros(len(materials))
+    for body, count in zip(scene.bodies, body_counts):
+        g = scene.material_index(body.material)
+        per_material[g] += count * materials[g].side_bytes_per_particle()
+    if not per_material.any():
+        return 0.0, "", ""
+    g = int(np.argmax(per_material))
+    bonds = getattr(materials[g], "half_bonds_per_particle", None)
+    what = f"{bonds()} half-bonds per particle" if bonds else "state outside the fields"
+    return (float(per_material.sum()), f"{what} of {scene.materials[g].name!r}",
+            f"materials[{g}].horizon" if bonds else f"materials[{g}]")
+
+
+def estimate_memory(scene, count: int, ranks: int, exact: bool,
+                    body_counts=None) -> MemoryEstimate:
     """Bytes per rank for ``count`` particles on ``ranks`` ranks. The busiest rank may hold
     up to ``parallel.rebalance_threshold`` times the mean before a rebalance; the grid block
     (one node per cell of the rank's particles plus its ghost layer, at most 10 fields) is
-    small beside the particles at 2 or more particles per cell per axis and is included."""
+    small beside the particles at 2 or more particles per cell per axis and is included, and
+    so are the bonds of peridynamic bodies (`side_bytes`; ``body_counts``: the particles of
+    each body, by default ``count`` shared as the bodies' shapes estimate)."""
+    from .geometry import estimate_body_counts
+
     per_particle = particle_bytes(scene)
-    share = count / ranks * (scene.parallel.rebalance_threshold if ranks > 1 else 1.0)
+    factor = scene.parallel.rebalance_threshold if ranks > 1 else 1.0
+    share = count / ranks * factor
     cells = share / scene.particles_per_cell ** scene.dim
     grid = 2.0 * cells * 10 * 8 * scene.dim  # support plus ghosts: at most twice the cells
-    per_rank = int(share * per_particle + grid + BASE_BYTES)
-    return MemoryEstimate(int(count), ranks, exact, per_particle, per_rank)
+    if body_counts is None:
+        guess, _ = estimate_body_counts(scene)
+        body_counts = np.asarray(guess) * (count / max(sum(guess), 1.0))
+    side, note, key = side_bytes(scene, body_counts)
+    side_share = int(side / ranks * factor)
+    per_rank = int(share * per_particle + grid + side_share + BASE_BYTES)
+    return MemoryEstimate(int(count), ranks, exact, per_particle, per_rank, side_share, note,
+                          key)
 
 
 def available_memory() -> int | None:
@@ -121,17 +163,21 @@ def memory_problem(scene, estimate: MemoryEstimate, ranks_on_node: int,
     share_bytes = estimate.per_rank - BASE_BYTES
     room = per_rank_here - BASE_BYTES
     needed = int(np.ceil(estimate.ranks * share_bytes / room)) if room > 0 else None
+    key, lower = "simulation.particles_per_cell", \
+        "lower simulation.particles_per_cell or refine less"
+    if 2 * estimate.side_per_rank > estimate.per_rank - BASE_BYTES:   # mostly bonds
+        key, lower = estimate.side_key, f"lower {estimate.side_key}"
     hint = (f"run on at least {needed} ranks with {ranks_on_node} per node like this one, "
-            if needed else "") + "or lower simulation.particles_per_cell or refine less"
-    return (f"{scene.path}: simulation.particles_per_cell: the scene needs "
+            if needed else "") + "or " + lower
+    return (f"{scene.path}: {key}: the scene needs "
             f"{estimate.describe()}, but this node has {format_bytes(available)} available "
             f"for {ranks_on_node} rank(s) ({format_bytes(per_rank_here)} each): {hint}")
 
 
-def check_memory(scene, domain, count: int, exact: bool) -> MemoryEstimate:
+def check_memory(scene, domain, count: int, exact: bool, body_counts=None) -> MemoryEstimate:
     """Estimate and refuse together: every rank raises the same `SceneError` when any node
     cannot hold its ranks' shares (one max-reduction)."""
-    estimate = estimate_memory(scene, count, domain.size, exact)
+    estimate = estimate_memory(scene, count, domain.size, exact, body_counts)
     available = available_memory()
     local = domain.ranks_on_node()
     ratio = estimate.per_rank * local / available if available else 0.0
@@ -155,7 +201,8 @@ def initial_particles(sim) -> MemoryEstimate:
     if not any(body.shape == "mesh" for body in scene.bodies):
         check_memory(scene, domain, guess, exact)
     counts = count_scene(scene, domain.rank, domain.size, domain.sum)
-    estimate = check_memory(scene, domain, counts.total, True)
+    estimate = check_memory(scene, domain, counts.total, True,
+                            [counts.body_count(b) for b in range(len(scene.bodies))])
     start, stop = share_bounds(counts.total, domain.rank, domain.size)
     # Room for the share and for what the bisection may give beyond it (a slab of cells),
     # so that the arrivals do not make the arrays grow by half.
@@ -171,7 +218,7 @@ def initial_particles(sim) -> MemoryEstimate:
         mark_prescribed_particles(scene, p)
     # Most particles change rank here (a slab of lattice layers is not a bisection box):
     # moved in rounds, so the buffers in flight stay at MIGRATE_BATCH rows.
-    domain.decompose(p, batch=MIGRATE_BATCH)
+    domain.decompose(p, batch=MIGRATE_BATCH, weights=sim.load_weights())
     return estimate
 
 
@@ -190,11 +237,17 @@ def dry_run(scene, comm) -> int:
     sim = Simulation(scene, domain)
     estimate = initial_particles(sim)
     counts = np.asarray(domain.allgather(int(sim.particles.n)), dtype=np.int64)
+    # With PD bonds the ranks are balanced by weight, not by count (Simulation.load_weights).
+    weights = sim.load_weights()
+    loads = None if weights is None else \
+        np.asarray(domain.allgather(int(weights.sum())), dtype=np.int64)
     rss = np.asarray(domain.allgather(peak_rss_bytes()), dtype=np.int64)
     if domain.rank == 0:
+        by_weight = "" if loads is None else \
+            f"; by load weight {loads.max() / max(loads.mean(), 1):.3f}"
         print(f"{scene.path}: dry run on {domain.size} rank(s): {int(counts.sum()):,} "
               f"particles, per rank min {counts.min():,} / max {counts.max():,} "
-              f"(imbalance {counts.max() / max(counts.mean(), 1):.3f})")
+              f"(imbalance {counts.max() / max(counts.mean(), 1):.3f}{by_weight})")
         print(f"memory estimate: {estimate.describe()}")
         print(f"peak RSS per rank (start-up): max {format_bytes(rss.max())}, "
               f"min {format_bytes(rss.min())}, mean {format_bytes(rss.mean())}; "
@@ -222,11 +275,14 @@ def validate_report(scene) -> str:
 
     lattice_points = sum(body_lattice(b, scene).size for b in scene.bodies
                          if b.shape != "box")
+    body_counts = None
     if lattice_points <= VALIDATE_COUNT_LIMIT:
-        count, exact = count_scene(scene).total, True
+        counts = count_scene(scene)
+        count, exact = counts.total, True
+        body_counts = [counts.body_count(b) for b in range(len(scene.bodies))]
     else:
         count, exact = estimate_count(scene)
-    estimate = estimate_memory(scene, count, 1, exact)
+    estimate = estimate_memory(scene, count, 1, exact, body_counts)
     available = available_memory()
     from .cli import count as counted
 

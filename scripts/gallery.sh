@@ -4,7 +4,8 @@
 # README block between the gallery markers from the pictures there.
 #   bash scripts/gallery.sh [SCENE ...]        default: every inputs/*.toml
 #   HPCMPM_GALLERY_RANKS=4 bash scripts/gallery.sh
-# Runs go to runs/gallery/<scene> (not committed). About 3 minutes on 2 cores.
+# Runs go to runs/gallery/<scene> (not committed). The new scenes run to their own end time
+# (the gallery doubles as the check that each does).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 . "$root/scripts/env.sh"
@@ -22,8 +23,33 @@ disks_2d          1.1    speed      -1
 jelly_cube_3d     0.4    speed      -1
 snow_block_3d     0.15   Jp         -1
 sponge_twist_3d   0.5    speed      -1
-gelatin_bullet_3d -      pressure   -1
-watermelon_3d     -      model      -1
+channel_newtonian_2d   -  v:x     -1
+channel_bingham_2d     -  v:x     -1
+channel_hb_2d          -  v:x     -1
+foam_coil_2d           -  speed   -1
+hb_mixer_2d            -  speed   -1
+pie_2d                 -  speed   -1
+viennetta_2d           -  speed   -1
+sponge_twist_ob_3d     -  speed   -1
+sponge_bullet_ob_3d    -  speed   -1
+toothpaste_3d          -  speed   -1
+pd_plate_tear_2d       -  damage  -1
+pd_sheet_tear_2d       -  damage  -1
+pd_jelly_stretch_3d    -  damage  -1
+kalthoff_winkler_2d    -  damage  -1
+ibmpm_bar_2d           -  v:x     -1
+ibmpm_disk_impact_2d   -  damage  -1
+ibmpm_ball_board_3d    -  damage  -1
+ibmpm_wall_fracture_2d -  damage  -1
+ibmpm_cream_pie_2d     -  damage  -1
+spb_stretched_bar_2d   -  damage  -1
+spb_chocolate_drop_3d  -  damage  -1
+cu_shock_column_2d     -  pressure -1
+shock_wall_2d          -  pressure -1
+taylor_cu_3d           -  eps_p   -1
+container_drop_3d      -  eps_p   -1
+gelatin_bullet_3d      -  pressure -1
+watermelon_3d          -  damage  -1
 '
 
 line_of() { awk -v s="$1" '$1 == s { print; exit }' <<<"$TABLE"; }

@@ -5,7 +5,9 @@ A collider moves with constant linear velocity ``v`` and spins with constant ang
 (in 2D, a rotation by ``omega t`` about z), and the rigid velocity at ``x`` is
 ``v + omega x (x - c(t))``. It acts only while ``start <= t <= end``. Grid nodes inside
 (``phi <= 0``) get their velocity relative to the obstacle projected (`contact.project`,
-Stomakhin 2013 §8).
+Stomakhin 2013 §8); so do off-grid particles (peridynamic bodies, 003 Alg. 2) whose position
+after the step would be inside (`Collider.apply_to_particles`), by the same point rule
+`project_relative`.
 
 Shapes live in a body frame centred at the origin, ``y = R^T (x - c)``: half-space (the
 obstacle is ``y_z <= 0``; R0 takes e_z to the scene's ``normal``, which points out of the
@@ -122,6 +124,23 @@ def level_set_at_points(x, shape, size, centre, R, phi, normal):
             normal[p, 2] = n2
 
 
+@njit(cache=True, inline="always")
+def project_relative(shape, size, centre, R, v_lin, omega, condition, friction, x0, x1, x2,
+                     u0, u1, u2):
+    """(inside, u0, u1, u2): the velocity u at offset ``x - c`` = (x0, x1, x2) projected
+    relative to the collider's rigid velocity ``v + omega x (x - c)`` when the point is
+    inside (``phi <= 0``), else u unchanged. The one contact rule for grid nodes and for
+    off-grid particles (hpcmpm/pd/contact.py). In 2D pass x2 = u2 = 0."""
+    phi, n0, n1, n2 = world_level_set(shape, size, centre, R, x0, x1, x2)
+    if phi > 0.0:
+        return False, u0, u1, u2
+    w0 = v_lin[0] + omega[1] * x2 - omega[2] * x1
+    w1 = v_lin[1] + omega[2] * x0 - omega[0] * x2
+    w2 = v_lin[2] + omega[0] * x1 - omega[1] * x0
+    r0, r1, r2 = project(u0 - w0, u1 - w1, u2 - w2, n0, n1, n2, condition, friction)
+    return True, r0 + w0, r1 + w1, r2 + w2
+
+
 @njit(cache=True)
 def project_collider(velocity, mass, use_mass, lo, hi, origin, dx, domain_lo, shape, size,
                      centre, R, v_lin, omega, condition, friction, record, basis, count):
@@ -141,23 +160,51 @@ def project_collider(velocity, mass, use_mass, lo, hi, origin, dx, domain_lo, sh
                 if use_mass and mass[i, j, k] <= 0.0:
                     continue
                 x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
-                phi, n0, n1, n2 = world_level_set(shape, size, centre, R, x0, x1, x2)
-                if phi > 0.0:
+                u2 = velocity[i, j, k, 2] if dim == 3 else 0.0
+                inside, r0, r1, r2 = project_relative(
+                    shape, size, centre, R, v_lin, omega, condition, friction, x0, x1, x2,
+                    velocity[i, j, k, 0], velocity[i, j, k, 1], u2)
+                if not inside:
                     continue
-                w0 = v_lin[0] + omega[1] * x2 - omega[2] * x1
-                w1 = v_lin[1] + omega[2] * x0 - omega[0] * x2
-                w2 = v_lin[2] + omega[0] * x1 - omega[1] * x0
-                u2 = velocity[i, j, k, 2] - w2 if dim == 3 else 0.0
                 if record:
+                    phi, n0, n1, n2 = world_level_set(shape, size, centre, R, x0, x1, x2)
+                    w0 = v_lin[0] + omega[1] * x2 - omega[2] * x1
+                    w1 = v_lin[1] + omega[2] * x0 - omega[0] * x2
+                    w2 = v_lin[2] + omega[0] * x1 - omega[1] * x0
                     constrain(basis, count, i, j, k, velocity[i, j, k, 0] - w0,
-                              velocity[i, j, k, 1] - w1, u2, n0, n1, n2, condition, dim)
+                              velocity[i, j, k, 1] - w1, u2 - w2 if dim == 3 else 0.0,
+                              n0, n1, n2, condition, dim)
                     continue
-                r0, r1, r2 = project(velocity[i, j, k, 0] - w0, velocity[i, j, k, 1] - w1, u2,
-                                     n0, n1, n2, condition, friction)
-                velocity[i, j, k, 0] = r0 + w0
-                velocity[i, j, k, 1] = r1 + w1
+                velocity[i, j, k, 0] = r0
+                velocity[i, j, k, 1] = r1
                 if dim == 3:
-                    velocity[i, j, k, 2] = r2 + w2
+                    velocity[i, j, k, 2] = r2
+
+
+@njit(cache=True)
+def project_collider_particles(x, v, dt, shape, size, centre, R, v_lin, omega, condition,
+                               friction):
+    """Off-grid particles (003 Alg. 2): a particle whose position after the step,
+    ``x + dt v``, lies inside the collider (placed at the end of the step) gets its velocity
+    projected there as a grid node's would be. x, v (n, dim); v in place. Returns the number
+    of projections."""
+    n, dim = x.shape
+    hits = 0
+    for p in range(n):
+        u2 = v[p, 2] if dim == 3 else 0.0
+        x2 = (x[p, 2] + dt * u2 - centre[2]) if dim == 3 else 0.0
+        inside, r0, r1, r2 = project_relative(
+            shape, size, centre, R, v_lin, omega, condition, friction,
+            x[p, 0] + dt * v[p, 0] - centre[0], x[p, 1] + dt * v[p, 1] - centre[1], x2,
+            v[p, 0], v[p, 1], u2)
+        if not inside:
+            continue
+        v[p, 0] = r0
+        v[p, 1] = r1
+        if dim == 3:
+            v[p, 2] = r2
+        hits += 1
+    return hits
 
 
 class Collider:
@@ -255,6 +302,18 @@ class Collider:
         project_collider(v3, m3, use_mass, lo, hi, org, float(dx), lo_x, self.shape, self.size,
                          centre, R, self.velocity, self.omega, self.condition, self.friction,
                          record, basis, count)
+
+    def apply_to_particles(self, x: np.ndarray, v: np.ndarray, t: float, dt: float) -> int:
+        """Off-grid particles x, v (n, dim) (peridynamic bodies, 003 Alg. 2): the velocity of
+        a particle about to move into the collider over [t, t + dt] is projected in place
+        (`project_collider_particles`); the collider is placed at t + dt as for the grid.
+        Returns the number of projections."""
+        t_end = t + dt
+        if not self.active(t_end) or len(x) == 0:
+            return 0
+        return project_collider_particles(
+            x, v, float(dt), self.shape, self.size, vec3(self.position(t_end), self.dim),
+            self.rotation(t_end), self.velocity, self.omega, self.condition, self.friction)
 
     def _node_box(self, centre, R, origin, dx, domain_lo, shape):
         """Block-index box of the nodes that can be inside: the collider's world bounding

@@ -197,24 +197,29 @@ def estimate_count(scene: Scene) -> tuple[int, bool]:
     """Particle count from the bodies' shapes alone, without testing any point: exact for
     boxes, volume / spacing^dim for spheres and cylinders, the bounding lattice for meshes.
     Returns (count, exact)."""
+    counts, exact = estimate_body_counts(scene)
+    return int(round(sum(counts))), exact
+
+
+def estimate_body_counts(scene: Scene) -> tuple[list[float], bool]:
+    """`estimate_count` per body: (counts, all exact)."""
     spacing = scene.dx / scene.particles_per_cell
-    total, exact = 0.0, True
+    out, exact = [], True
     for body in scene.bodies:
         lat = body_lattice(body, scene)
         p = body.params
         if body.shape == "sphere":
             volume = np.pi * p["radius"] ** 2 if scene.dim == 2 else \
                 4.0 / 3.0 * np.pi * p["radius"] ** 3
-            total += min(volume / np.float64(spacing) ** scene.dim, lat.size)
+            out.append(min(volume / np.float64(spacing) ** scene.dim, lat.size))
             exact = False
         elif body.shape == "cylinder":
-            total += min(np.pi * p["radius"] ** 2 * p["length"] / np.float64(spacing) ** 3,
-                         lat.size)
+            out.append(min(np.pi * p["radius"] ** 2 * p["length"] / np.float64(spacing) ** 3, lat.size))
             exact = False
         else:
-            total += lat.size
+            out.append(float(lat.size))
             exact = exact and body.shape == "box"
-    return int(round(total)), exact
+    return out, exact
 
 
 def share_bounds(total: int, rank: int, size: int) -> tuple[int, int]:

@@ -241,9 +241,22 @@ class Material:
             params.pop("failure")
         return problems + check_params(cls.parameters, params)
 
+    @classmethod
+    def scene_problems(cls, spec, scene) -> list[str]:
+        """Problems of a valid parameter set against the rest of the scene (dimension,
+        spacing, domain, other materials), ``"key: what is wrong"`` each: the scene validator
+        reports them with the TOML path, like the schema's (`hpcmpm.scene.parse_scene`).
+        None by default."""
+        return []
+
     def configure(self, scene) -> None:
         """Called once the scene is known (grid spacing, time-step limits): a model that
         needs them reads them here, and raises SceneError for a combination it cannot run."""
+
+    def side_bytes_per_particle(self) -> int:
+        """Bytes a particle of this material holds outside the particle fields (peridynamic
+        bonds), for the start-up memory estimate; 0 by default. Call after `configure`."""
+        return 0
 
     @property
     def volumetric(self) -> bool:

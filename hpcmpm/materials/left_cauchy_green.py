@@ -424,15 +424,15 @@ class LeftCauchyGreenMaterial(Material):
             bound = min(bound, self.dt_limit(scene.dx))
         return bound
 
-    def scene_problems(self, scene) -> list[str]:
+    def run_problems(self, scene) -> list[str]:
         """Problems ("key: what is wrong") of this material in ``scene`` (none here; Oldroyd-B
         checks its relaxation update against the time step and the integrator)."""
         return []
 
     def configure(self, scene) -> None:
         """Raises SceneError, one line per problem as "{file}: materials[i].key: ...", when
-        this material cannot run in ``scene`` (`scene_problems`)."""
-        problems = self.scene_problems(scene)
+        this material cannot run in ``scene`` (`run_problems`)."""
+        problems = self.run_problems(scene)
         if problems:
             where = f"materials[{scene.material_index(self.spec.name)}]"
             prefix = f"{scene.path}: " if getattr(scene, "path", None) else ""

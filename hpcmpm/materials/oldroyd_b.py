@@ -78,7 +78,7 @@ class OldroydB(LeftCauchyGreenMaterial):
                 f"{self.relaxation_time:g}; use plasticity = 'ob_spd' or set "
                 f"simulation.max_dt <= {self.relaxation_time:g}")
 
-    def scene_problems(self, scene) -> list[str]:
+    def run_problems(self, scene) -> list[str]:
         """The integrator and time-step bounds of the relaxation update."""
         problems = [self.integrator_problem(getattr(scene, "integrator", "explicit")),
                     self.time_step_problem(self.largest_time_step(scene))]

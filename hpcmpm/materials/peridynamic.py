@@ -25,11 +25,15 @@ import math
 
 import numpy as np
 
-from ..errors import SceneError
-from ..pd.families import DEFAULT_HORIZON, INFLUENCES
+from ..pd.families import DEFAULT_HORIZON, INFLUENCES, half_bonds_per_particle
 from ..pd import moduli
 from ..state import SCALAR, VECTOR, FieldSpec
-from .base import POISSON, YOUNG, ElasticMaterial, Material, Param, choice
+from .base import POISSON, YOUNG, ElasticMaterial, Material, Param, choice, resolve_params
+from .pd_models import EXTRA_PARAMETERS, check_chapter5
+
+
+def _point(x) -> str:
+    return "[" + ", ".join(f"{v:g}" for v in x) + "]"
 
 
 def _is_bool(value):
@@ -58,7 +62,8 @@ class Peridynamic(Material):
 
     name = "peridynamic"
     parameters = {
-        "model": choice(("pmb", "lps", "correspondence"), "pmb", "bond model"),
+        "model": choice(("pmb", "lps", "correspondence", "bond_energy", "viscoelastic_lps"),
+                        "pmb", "bond model"),
         "integration": choice(("pd", "grid"), "pd",
                               "pd: own bond forces (003 Alg. 2); grid: integral-based MPM"),
         "E": YOUNG,
@@ -81,13 +86,17 @@ class Peridynamic(Material):
         "stress_material": Param(-math.inf, math.inf, False, None, check=_is_name,
                                  doc="correspondence: the material whose stress it uses"),
         "skin": Param(0.0, math.inf, False, 1.0, doc="PD halo skin in particle spacings"),
+        # Models of 003 ch. 5: materials/pd_models.py.
+        **EXTRA_PARAMETERS,
         "precracks": Param(-math.inf, math.inf, False, None, check=_precracks,
                            doc="segments (2D) or planar polygons (3D) no bond crosses"),
     }
     # Reference positions (NaN until the first PD phase copies x), the LPS weighted volume,
-    # the damage denominator, and the damage phi (003 eq. 4.8) for frames.
+    # the damage denominator, the damage phi (003 eq. 4.8) for frames, and the active
+    # half-bonds (-1 until the bonds are made) that weigh the particle for load balance.
     fields = {"x0": FieldSpec(VECTOR, "f8", math.nan), "pd_m": FieldSpec(SCALAR),
-              "pd_wvol0": FieldSpec(SCALAR), "damage": FieldSpec(SCALAR)}
+              "pd_wvol0": FieldSpec(SCALAR), "damage": FieldSpec(SCALAR),
+              "active_bonds": FieldSpec(SCALAR, "i4", -1)}
     deformation = "F"
 
     def __init__(self, spec, dim: int):
@@ -96,13 +105,7 @@ class Peridynamic(Material):
         self.on_grid = prm["integration"] == "grid"
         E, nu, plane = prm["E"], prm["nu"], prm["plane"]
         where = f"material {spec.name!r} ({self.name})"
-        if prm["model"] == "pmb":
-            problem = moduli.check_pmb_poisson(dim, nu, plane)
-            if problem:
-                raise SceneError(f"{where}: {problem}")
-        if prm["model"] == "correspondence" and not prm["stress_material"]:
-            raise SceneError(f"{where}: stress_material: missing (the correspondence model "
-                             "evaluates another material's stress)")
+        check_chapter5(prm, where)      # keys of the 003 ch. 5 models (pd_models.py)
         self.bulk = moduli.bulk_modulus(dim, E, nu, plane)
         self.mu = moduli.shear_modulus(E, nu)
         # Lamé pair of the same (3D or plane strain) solid, for the wave speed.
@@ -111,39 +114,71 @@ class Peridynamic(Material):
         self.spacing = math.nan
         self.delta = math.nan
 
+    @classmethod
+    def scene_problems(cls, spec, scene) -> list[str]:
+        """The issue's bad input that needs the scene (the scene validator reports each with
+        its TOML path): a PMB Poisson ratio the dimension cannot represent, a horizon below
+        one particle spacing, a pre-crack of the wrong dimension or outside the domain, a
+        correspondence model without an elastic stress material."""
+        from . import MATERIALS
+
+        prm = resolve_params(cls.parameters, dict(spec.params))
+        dim, out = scene.dim, []
+        if prm["model"] == "pmb":
+            problem = moduli.check_pmb_poisson(dim, prm["nu"], prm["plane"])
+            if problem:
+                out.append(problem)
+        spacing = scene.dx / scene.particles_per_cell
+        if prm["horizon_length"] is not None and prm["horizon_length"] < spacing:
+            out.append(f"horizon_length: {prm['horizon_length']:g} is below one particle "
+                       f"spacing {spacing:g} (simulation.dx / particles_per_cell)")
+        lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
+        for k, c in enumerate(prm["precracks"] or ()):
+            c = np.asarray(c, dtype=np.float64)
+            if c.shape[1] != dim or (dim == 2 and len(c) != 2) or (dim == 3 and len(c) < 3):
+                out.append(f"precracks[{k}]: must be " + (
+                    "a segment of two points [x, y]" if dim == 2
+                    else "a planar polygon of >= 3 points [x, y, z]"))
+            elif np.any(c < lo) or np.any(c > hi):
+                out.append(f"precracks[{k}]: outside the domain (lower {_point(lo)}, "
+                           f"upper {_point(hi)})")
+        if prm["model"] == "correspondence":
+            names = [m.name for m in scene.materials]
+            other = prm["stress_material"]
+            if not other:
+                out.append("stress_material: missing (the correspondence model evaluates "
+                           "another material's stress)")
+            elif other not in names:
+                out.append(f"stress_material: no material named {other!r} (have: "
+                           f"{', '.join(names)})")
+            elif not issubclass(MATERIALS[scene.materials[names.index(other)].type],
+                                ElasticMaterial):
+                out.append(f"stress_material: {other!r} is not an elastic model of F alone")
+        return out
+
     def configure(self, scene) -> None:
         prm = self.params
-        where = f"material {self.spec.name!r} ({self.name})"
         self.spacing = scene.dx / scene.particles_per_cell
         self.delta = prm["horizon_length"] if prm["horizon_length"] is not None else \
             prm["horizon"] * self.spacing
-        if self.delta < self.spacing:
-            raise SceneError(f"{where}: horizon_length: {self.delta:g} is below one particle "
-                             f"spacing {self.spacing:g}")
-        if prm["precracks"] is not None:
-            lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
-            for k, c in enumerate(prm["precracks"]):
-                c = np.asarray(c, dtype=np.float64)
-                if c.shape[1] != self.dim or (self.dim == 2 and len(c) != 2) or \
-                        (self.dim == 3 and len(c) < 3):
-                    raise SceneError(f"{where}: precracks[{k}]: must be "
-                                     + ("a segment of two points [x, y]" if self.dim == 2
-                                        else "a planar polygon of >= 3 points [x, y, z]"))
-                if np.any(c < lo) or np.any(c > hi):
-                    raise SceneError(f"{where}: precracks[{k}]: outside the domain")
         if prm["model"] == "correspondence":
             from . import make_material
 
             names = [m.name for m in scene.materials]
-            if prm["stress_material"] not in names:
-                raise SceneError(f"{where}: stress_material: no material named "
-                                 f"{prm['stress_material']!r} (have: {', '.join(names)})")
-            other = make_material(scene.materials[names.index(prm["stress_material"])],
-                                  self.dim)
-            if not isinstance(other, ElasticMaterial):
-                raise SceneError(f"{where}: stress_material: {other.name!r} is not an elastic "
-                                 "model of F alone")
-            self.stress_model = other
+            self.stress_model = make_material(
+                scene.materials[names.index(prm["stress_material"])], self.dim)
+
+    def half_bonds_per_particle(self) -> int:
+        """Half-bonds of an interior particle (the memory estimate before allocation)."""
+        return half_bonds_per_particle(self.dim, self.delta / self.spacing,
+                                       self.params["partial_volumes"])
+
+    def side_bytes_per_particle(self) -> int:
+        """The bonds of an interior particle: its half-bonds times the resident bytes of one
+        (pd/bonds.py) plus 4 B of the family search's scratch per half-bond."""
+        from ..pd.bonds import Bonds
+
+        return self.half_bonds_per_particle() * (Bonds.empty().resident_bytes_per_bond() + 4)
 
     # -- PD constants ------------------------------------------------------------------------
     def micromodulus(self) -> float:
@@ -157,6 +192,9 @@ class Peridynamic(Material):
         P-wave modulus."""
         if self.params["model"] == "pmb":
             return self.micromodulus()
+        if self.params["model"] == "bond_energy":      # 003 ch. 5: materials/pd_models.py
+            from .pd_models import bond_energy_time_step_c
+            return bond_energy_time_step_c(self)
         return moduli.equivalent_micromodulus(self.dim, self.bulk, self.mu, self.delta,
                                               self.params["influence"])
 
@@ -178,13 +216,19 @@ class Peridynamic(Material):
             return PMB(self.micromodulus(), s0)
         if prm["model"] == "lps":
             return LPS(self.bulk, self.mu, s0, c_dt)
+        if prm["model"] in ("bond_energy", "viscoelastic_lps"):   # materials/pd_models.py
+            from .pd_models import make_chapter5_model
+            return make_chapter5_model(self, s0, c_dt)
         other = self.stress_model
 
         def stress(F, tau):
             other.update_stress({"F": np.ascontiguousarray(F), "tau": tau}, 0.0)
 
+        def energy(F, vol):
+            return other.energy({"F": np.ascontiguousarray(F), "vol0": vol})
+
         return Correspondence(self.dim, stress, prm["stabilization"] * self.micromodulus(), s0,
-                              c_dt)
+                              c_dt, energy=energy)
 
     def make_extension(self, sim):
         """The step extension that does the PD work (hpcmpm/pd/extension.py)."""
@@ -232,6 +276,7 @@ class Peridynamic(Material):
         fields["tau"][...] = 0.0
 
     def energy(self, fields) -> float:
-        """The strain energy is the PD extension's (bonds are not particle fields): 0 here."""
+        """0 here: the bond strain energy is the PD extension's (bonds are not particle
+        fields), `PDExtension.strain_energy`, which the diagnostics add."""
         return 0.0
 

@@ -232,8 +232,11 @@ def _empty_cut(lo: np.ndarray, hi: np.ndarray, n_cells: np.ndarray, n_left: int,
 def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
                         reduce_max: Callable[[np.ndarray], np.ndarray],
                         reduce_sum: Callable[[np.ndarray], np.ndarray],
-                        periodic=None) -> np.ndarray:
-    """Boxes of cells, one per rank, by recursive coordinate bisection weighted by particles.
+                        periodic=None, weights: np.ndarray | None = None) -> np.ndarray:
+    """Boxes of cells, one per rank, by recursive coordinate bisection weighted by particles
+    (by their ``weights`` when given: integer costs, e.g. a peridynamic particle's bonds,
+    `Simulation.load_weights`; integers keep the global histograms exact, so every rank
+    derives the same cuts on any rank count).
 
     The rank range of a box is split in two (``floor``/``ceil`` halves); the box is cut along
     the longest axis of its particles' global extent, at the weighted quantile given by the
@@ -243,6 +246,7 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
 
     cells : (n, dim) int64 cells of this rank's particles.
     reduce_max, reduce_sum : elementwise reductions of int64 arrays over all ranks.
+    weights : (n,) int64 cost of each particle (None: 1 each).
     periodic : (dim,) bool, axes whose cells wrap: there the boxes tile ``[0, n_cells)``
         exactly (no particle lies outside once positions are wrapped), elsewhere the outermost
         faces sit at ``+-BIG``.
@@ -284,7 +288,9 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
             if lengths[i] and len(index):
                 a = axes[i]
                 hist[offsets[i]:offsets[i + 1]] = np.bincount(
-                    cells[index, a] - first[i, a], minlength=lengths[i])
+                    cells[index, a] - first[i, a], minlength=lengths[i]) if weights is None \
+                    else _weighted_bincount(cells[index, a] - first[i, a], weights[index],
+                                            lengths[i])
         hist = reduce_sum(hist)
         children = []
         for i, (r0, r1, lo, hi, index) in enumerate(level):
@@ -302,6 +308,15 @@ def recursive_bisection(cells: np.ndarray, size: int, n_cells: np.ndarray,
             children.append((r0 + n_left, r1, lo_right, hi, index[~left]))
         level = children
     return boxes
+
+
+@njit(cache=True)
+def _weighted_bincount(bins, weights, length):
+    """np.bincount with integer weights, summed as int64 (np.bincount sums floats)."""
+    out = np.zeros(length, dtype=np.int64)
+    for k in range(len(bins)):
+        out[bins[k]] += weights[k]
+    return out
 
 
 def neighbour_ranks(boxes: np.ndarray, me: int, shifts: np.ndarray, reach: int) -> np.ndarray:

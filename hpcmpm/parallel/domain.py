@@ -122,14 +122,17 @@ class Domain(Communicator):
                                            lambda a: a, lambda a: a, self.periodic))
 
     # -- decomposition ------------------------------------------------------------------------
-    def decompose(self, particles, batch: int | None = None) -> None:
-        """Recursive coordinate bisection of the cells weighted by the particles on all ranks,
-        then move every particle to its owner (`migrate_all`, ``batch`` rows per round).
-        Collective and deterministic."""
+    def decompose(self, particles, batch: int | None = None,
+                  weights: np.ndarray | None = None) -> None:
+        """Recursive coordinate bisection of the cells weighted by the particles on all ranks
+        (by their integer ``weights`` (n,) when given, `Simulation.load_weights`), then move
+        every particle to its owner (`migrate_all`, ``batch`` rows per round). Collective and
+        deterministic."""
         self.wrap(particles["x"])
         cells = particle_cells(particles["x"], self.domain_lo, self.inv_dx)
         boxes = recursive_bisection(cells, self.size, self.n_cells,
-                                    self._reduce_max, self._reduce_sum, self.periodic)
+                                    self._reduce_max, self._reduce_sum, self.periodic,
+                                    weights)
         del cells
         self.set_boxes(boxes)
         self.migrate_all(particles, batch)
@@ -357,20 +360,23 @@ class Domain(Communicator):
         return {name: np.ascontiguousarray(a) for name, a in unpack_rows(recv).items()}
 
     # -- load balance -------------------------------------------------------------------------
-    def imbalance(self, particles) -> float:
-        """max / mean particle count over ranks (1.0 when there are no particles); one
-        allreduce of 3 doubles."""
-        maxes, sums = self.max_then_sum([particles.n], [particles.n])
+    def imbalance(self, particles, weights: np.ndarray | None = None) -> float:
+        """max / mean load over ranks: the particle count, or the sum of ``weights`` (n,)
+        (1.0 when there is none); one allreduce of 3 doubles."""
+        load = particles.n if weights is None else int(np.sum(weights))
+        maxes, sums = self.max_then_sum([load], [load])
         mean = sums[0] / self.size
         return float(maxes[0] / mean) if mean > 0 else 1.0
 
-    def rebalance(self, particles, threshold: float = 1.2) -> bool:
-        """Recompute the bisection and migrate when ``imbalance > threshold``. Every rank takes
-        the same branch (the imbalance is global). Only moves particles, so results change by
-        round-off at most (summation order of the grid halo)."""
-        if self.size == 1 or self.imbalance(particles) <= threshold:
+    def rebalance(self, particles, threshold: float = 1.2,
+                  weights: np.ndarray | None = None) -> bool:
+        """Recompute the bisection and migrate when ``imbalance > threshold`` (both by
+        ``weights`` when given). Every rank takes the same branch (the imbalance is global).
+        Only moves particles, so results change by round-off at most (summation order of the
+        grid halo)."""
+        if self.size == 1 or self.imbalance(particles, weights) <= threshold:
             return False
-        self.decompose(particles)
+        self.decompose(particles, weights=weights)
         return True
 
     # -- grid ---------------------------------------------------------------------------------

@@ -1,10 +1,12 @@
-"""Walls for peridynamic particles off the grid (003 Alg. 2: colliders and walls act per
-particle when the particles are not on the grid).
+"""Walls and colliders for peridynamic particles off the grid (003 Alg. 2: colliders and
+walls act per particle when the particles are not on the grid).
 
 A particle whose position after the step, x + dt v, would lie beyond a face of the domain box
-gets its velocity projected against that face as a grid node would (`boundaries.contact`:
-sticky, slip, separate with Coulomb friction), before the position update; so a PD body stops
-at the wall instead of passing it.
+or inside an analytic collider (placed where it is at the end of the step) gets its velocity
+projected against that face or relative to the collider's rigid velocity as a grid node would
+(`boundaries.contact`: sticky, slip, separate with Coulomb friction; the colliders' own
+`Collider.apply_to_particles`), before the position update; so a PD body stops at the
+obstacle instead of passing it.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..boundaries.colliders import Collider
 from ..boundaries.contact import CONDITIONS, project
 
 
@@ -61,3 +64,19 @@ class ParticleWalls:
     def apply(self, x, v, dt: float) -> int:
         return walls_on_particles(x, v, dt, self.lo, self.hi, self.conditions,
                                   self.frictions, self.active)
+
+
+class ParticleColliders:
+    """The scene's analytic colliders as they act on off-grid particles, in scene order
+    (after the walls, as on the grid)."""
+
+    def __init__(self, scene):
+        self.colliders = [Collider(spec, scene.dim) for spec in getattr(scene, "colliders", ())]
+        self.hits = 0
+
+    def apply(self, x, v, t: float, dt: float) -> int:
+        """Project v (n, d) in place for particles about to enter a collider over
+        [t, t + dt]; returns the number of projections."""
+        hits = sum(c.apply_to_particles(x, v, t, dt) for c in self.colliders)
+        self.hits += hits
+        return hits

@@ -196,6 +196,34 @@ def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, activ
 
 
 @njit(cache=True, error_model="numpy")
+def stabilization_energy(x, x0, vol, offsets, slot, status, weight, F, active, G, n_owned):
+    """sum_p a_p V_p sum_q (G w / (2|X|)) |Y - F_p X|^2 V_q: the energy whose gradient is
+    the zero-energy-mode force of `correspondence_forces` (F_p is the least-squares fit of
+    the family, so its own variation contributes nothing)."""
+    dim = x.shape[1]
+    Xv = np.empty(3)
+    Yv = np.empty(3)
+    total = 0.0
+    for p in range(n_owned):
+        if active[p] == 0.0:
+            continue
+        s = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, slot[b], dim)
+            z2 = 0.0
+            for i in range(dim):
+                z = Yv[i]
+                for j in range(dim):
+                    z -= F[p, i, j] * Xv[j]
+                z2 += z * z
+            s += weight[b] * z2 / norm3(Xv[0], Xv[1], Xv[2]) * vol[slot[b]]
+        total += 0.5 * G * s * vol[p]
+    return total
+
+
+@njit(cache=True, error_model="numpy")
 def correspondence_bond_forces(x, x0, vol, offsets, slot, status, weight, A, F, active, G,
                                n_owned, out):
     """The per-half-bond terms of `correspondence_forces`, out (nb, d) (verification)."""
@@ -222,6 +250,8 @@ class Correspondence:
     stress : callable(F (n, d, d), tau (n, d, d)) writing the Kirchhoff stress of a material
         (e.g. a hpcmpm material's stress kernel with its moduli bound); the engine instead
         calls `kinematics`, evaluates its material, then `set_stress`.
+    energy : callable(F (n, d, d), vol (n,)) -> sum_p vol_p psi(F_p) of the same material
+        (for `strain_energy`; None: the stress material's energy is not counted).
     stabilization_modulus : G = stabilization * c.
     critical_stretch : s0 (inf: no failure).
     time_step_c : micromodulus of the PMB solid with the same P-wave modulus.
@@ -232,9 +262,10 @@ class Correspondence:
     halo_fields = ("A", "F", "active")
 
     def __init__(self, dim: int, stress=None, stabilization_modulus: float = 0.0,
-                 critical_stretch: float = math.inf, time_step_c: float = 0.0):
+                 critical_stretch: float = math.inf, time_step_c: float = 0.0, energy=None):
         self.dim = dim
         self.stress = stress
+        self.energy = energy
         self.G = float(stabilization_modulus)
         self.s0 = float(critical_stretch)
         self.c_dt = float(time_step_c)
@@ -273,6 +304,21 @@ class Correspondence:
         self.stress(self.F[:n], self.tau[:n])
         self.set_stress(self.tau, n)
         return broken
+
+    def strain_energy(self, pts) -> float:
+        """sum_p V_p (psi(F_p) + zero-energy-mode penalty) over the owned points at their
+        current positions, F recomputed into scratch (the model's F, A of the last force pass
+        are left alone). Reads the intact bonds of ``pts`` as they are (the caller breaks the
+        over-stretched ones on a copy first)."""
+        b, n, d = pts.bonds, pts.n_owned, self.dim
+        F, Kinv, active = np.empty((n, d, d)), np.empty((n, d, d)), np.empty(n)
+        correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                                  b.weight, math.inf, n, F, Kinv, active)
+        total = stabilization_energy(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                                     b.weight, F, active, self.G, n)
+        if self.energy is not None:
+            total += self.energy(F, np.ascontiguousarray(pts.vol[:n]))
+        return float(total)
 
     def forces(self, pts, f) -> int:
         b = pts.bonds

@@ -100,6 +100,7 @@ class DistributedPDBody:
             self.halo.refresh({"x": p["x"]}, {"x": self.pts.x[p.n:]})
         n = p.n
         force = np.empty((n, self.domain.dim))
+        self.model.dt = dt          # rate models (viscoelastic_lps) integrate over the step
         self.broken += bond_forces(self.model, self.pts, force, self.halo.refresh_rows(n))
         mass = p["mass"]
         p["v"][...] += dt * (force + p["vol0"][:, None] * self.body_force) / mass[:, None]

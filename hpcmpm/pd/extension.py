@@ -21,6 +21,7 @@ set, so particles that become PD later get their x0 when they do).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -31,10 +32,12 @@ import numpy as np
 from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
-from .contact import ParticleWalls
-from .families import find_families, half_bonds_per_particle
-from .geometry import damage, weighted_volume_sums
+from .boundary import impose_prescribed_velocity
+from .contact import ParticleColliders, ParticleWalls
+from .families import find_families
+from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
+from .load import bond_cost
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +66,7 @@ class PDExtension:
         self.broken = 0
         self._damage_at = 0
         self.redistributions = 0
+        self.bond_cost = bond_cost(sim.dim, self.model.name)     # c_b (pd/load.py)
 
     # -- keeping the side structures in step with the particles -------------------------------
     def _rows(self):
@@ -86,13 +90,17 @@ class PDExtension:
             self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
         self.model.resize(len(self.pts.x))
 
+    def _where(self, key: str = "") -> str:
+        """The material's place in the scene file, for messages in the validator's format."""
+        return f"{self.sim.scene.path}: materials[{self.group}]" + (f".{key}" if key else "")
+
     def _check_memory(self, n: int) -> None:
         """Refuse a horizon whose bonds would not fit: an estimate before allocating, from
-        an interior family's count (collective; the same SceneError on every rank)."""
-        per_particle = half_bonds_per_particle(
-            self.sim.dim, self.material.delta / self.material.spacing,
-            self.material.params["partial_volumes"])
-        need = n * per_particle * (Bonds.empty().resident_bytes_per_bond() + 4)
+        an interior family's count (collective; the same SceneError on every rank). The
+        start-up memory check (hpcmpm/startup.py) counts the bonds too; this one sees the
+        rank's actual share."""
+        per_particle = self.material.half_bonds_per_particle()
+        need = n * self.material.side_bytes_per_particle()
         try:
             memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         except (ValueError, OSError, AttributeError):
@@ -100,10 +108,9 @@ class PDExtension:
         worst = self.sim.domain.max(float(need))
         if worst > 0.5 * memory:
             raise SceneError(
-                f"material {self.material.spec.name!r} (peridynamic): horizon: "
-                f"{per_particle} half-bonds per particle need about {worst / 2**30:.1f} GiB "
-                f"on one rank, more than half of its {memory / 2**30:.1f} GiB: lower the "
-                "horizon or use more ranks")
+                f"{self._where('horizon')}: {per_particle} half-bonds per particle need about "
+                f"{worst / 2**30:.1f} GiB on one rank, more than half of its "
+                f"{memory / 2**30:.1f} GiB: lower the horizon or use more ranks")
 
     def _initialize(self, start, stop) -> None:
         """Families in the reference configuration (collective)."""
@@ -127,11 +134,12 @@ class PDExtension:
         weighted_volume_sums(self.pts.x0, self.pts.vol, self.bonds.offsets, self.bonds.slot,
                              self.bonds.status, self.bonds.weight, stop - start,
                              p["pd_wvol0"][start:stop])
+        p["active_bonds"][start:stop] = self.bonds.intact_counts()
         lonely = self.sim.domain.sum(int(np.sum(self.bonds.counts() == 0)))
         if lonely and self.sim.domain.rank == 0:
-            log.warning("material %r: %d peridynamic particle(s) have no bond (horizon "
-                        "%.3g, spacing %.3g)", self.material.spec.name, lonely,
-                        self.material.delta, self.material.spacing)
+            log.warning("%s: warning: %d particle(s) of material %r have no bond (horizon "
+                        "%.4g, spacing %.4g): they move freely", self._where(), lonely,
+                        self.material.spec.name, self.material.delta, self.material.spacing)
         # The halo was built before the persistent fields existed: ship them now.
         self._rebuild(start, stop)
 
@@ -195,6 +203,25 @@ class PDExtension:
         self.broken += bond_forces(self.model, self.pts, self.force, self.halo.refresh_rows(n))
         return self.force
 
+    def strain_energy(self, sim) -> float:
+        """Bond strain energy of this rank's PD particles, sum_p V_p W_p at the current
+        positions (each bond once: half its micropotential at each end), for the diagnostics'
+        elastic energy (`Simulation.diagnostics`). Bonds stretched past s0, which the next
+        force pass breaks, carry none; nothing of the run's state changes. Collective (the
+        bond rows and the halo are brought up to date first, as the next step would)."""
+        if self.bonds is None:          # no step yet: x = x0 when the bonds are made
+            return 0.0
+        self.prepare()
+        energy = getattr(self.model, "strain_energy", None)
+        if energy is None:
+            return 0.0
+        b, pts = self.bonds, self.pts
+        status = b.status.copy()
+        break_stretched(pts.x, pts.x0, b.offsets, b.slot, status,
+                        getattr(self.model, "s0", math.inf), pts.n_owned)
+        trial = Bonds(b.offsets, b.partner, b.weight, status, b.slot, b.state)
+        return energy(dataclasses.replace(pts, bonds=trial))
+
     def write_damage(self, start, stop) -> None:
         """phi (003 eq. 4.8) of the rows; only when bonds broke since the last call (the
         rows' values otherwise stand, whatever the reordering, since they move with their
@@ -205,6 +232,17 @@ class PDExtension:
         p, b = self.sim.particles, self.bonds
         damage(self.pts.vol, b.offsets, b.slot, b.status, b.weight, p["pd_wvol0"][start:stop],
                stop - start, p["damage"][start:stop])
+        p["active_bonds"][start:stop] = b.intact_counts()
+
+    def add_load(self, sim, weights: np.ndarray) -> None:
+        """`Simulation.load_weights`: each particle of this material costs c_b times its
+        active half-bonds more (pd/load.py), in the weights' integer units; before the bonds
+        exist, an interior family's count. Rows found by group (any order: between steps)."""
+        p = sim.particles
+        rows = np.flatnonzero(p["group"] == self.group)
+        active = p["active_bonds"][rows].astype(np.float64)
+        active[active < 0] = self.material.half_bonds_per_particle()
+        weights[rows] += np.rint(sim.particle_weight * self.bond_cost * active).astype(np.int64)
 
 
 class _HalfBondRows:
@@ -280,21 +318,25 @@ class CheckpointedBonds:
 
 class PDBodyExtension(CheckpointedBonds, PDExtension):
     """``integration = "pd"``: 003 Alg. 2 after G2P on the off-grid PD particles; the
-    domain walls act per particle (pd/contact.py; analytic colliders do not, yet)."""
+    domain walls and the analytic colliders act per particle (pd/contact.py)."""
 
     def __init__(self, sim, material):
         super().__init__(sim, material)
         self.walls = ParticleWalls(sim.scene)
+        self.colliders = ParticleColliders(sim.scene)
 
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):
             start, stop = self.prepare()
+            self.model.dt = dt      # rate models (viscoelastic_lps) integrate over the step
             f = self.compute_forces(start, stop)
             p = sim.particles
             v = p["v"][start:stop]
             x = p["x"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
             self.walls.apply(x, v, dt)
+            self.colliders.apply(x, v, sim.time, dt)
+            impose_prescribed_velocity(sim, start, stop, v)     # pd/boundary.py (wins)
             x += dt * v
             self.write_damage(start, stop)
 
@@ -304,11 +346,15 @@ class IntegralMPMExtension(CheckpointedBonds, PDExtension):
 
     def particle_forces(self, sim, dt: float):
         start, stop = self.prepare()
+        self.model.dt = dt          # rate models (viscoelastic_lps) integrate over the step
         f = self.compute_forces(start, stop)
         self.write_damage(start, stop)
         yield start, stop, f
 
 
 def make_extension(sim, material) -> PDExtension:
+    if material.params.get("crack_threshold") is not None:     # 003 §5.4: crack_planes.py
+        from .crack_planes import make_crack_plane_extension
+        return make_crack_plane_extension(sim, material)
     cls = IntegralMPMExtension if material.on_grid else PDBodyExtension
     return cls(sim, material)

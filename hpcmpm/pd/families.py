@@ -186,9 +186,18 @@ def half_bonds_per_particle(dim: int, delta_in_spacings: float,
     r = delta_in_spacings + 0.5 if partial_volumes else delta_in_spacings
     k = int(math.ceil(r))
     axis = np.arange(-k, k + 1)
-    d2 = sum(np.meshgrid(*[axis * axis] * dim, indexing="ij"))
-    inside = (d2 < r * r) if partial_volumes else (d2 <= r * r)
-    return int(inside.sum()) - 1
+    # Along the last axis the points of each line are counted, not listed: a large horizon
+    # (the case this estimate refuses) must not allocate (2k + 1)^3 points in 3D.
+    rem = r * r - sum(np.meshgrid(*[axis * axis] * (dim - 1), indexing="ij")).astype(float)
+    top = np.floor(np.sqrt(np.maximum(rem, 0.0)))
+    for _ in range(2):          # round-off of the square root, either way
+        top = np.where(_inside(top * top, rem, partial_volumes), top, top - 1)
+        top = np.where(_inside((top + 1) ** 2, rem, partial_volumes), top + 1, top)
+    return int(np.sum(np.where(top >= 0, 2 * top + 1, 0))) - 1
+
+
+def _inside(k2, rem, strict):
+    return (k2 < rem) if strict else (k2 <= rem)
 
 
 def periodic_images(x0, lo, period, reach):

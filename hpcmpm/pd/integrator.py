@@ -117,6 +117,7 @@ class PDBody:
 
     def step(self, dt: float) -> None:
         """One symplectic Euler step (Alg. 2 line 15)."""
+        self.model.dt = dt          # rate models (viscoelastic_lps) integrate over the step
         self.broken += self.compute_forces()
         n = self.pts.n_owned
         vol = self.pts.vol[:n]

@@ -214,3 +214,17 @@ class LPS:
         lps_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                            pts.fields["m"], self.theta, self.kappa, self.mu, pts.n_owned, out)
         return out
+
+    def strain_energy(self, pts) -> float:
+        """sum_p V_p W_p over the owned points at their current positions, theta recomputed
+        into scratch (the model's own theta, that of the last force pass, is left alone).
+        Reads the intact bonds of ``pts`` as they are (the caller breaks the over-stretched
+        ones on a copy first)."""
+        b = pts.bonds
+        theta = np.zeros(len(pts.x))
+        lps_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                       pts.fields["m"], math.inf, pts.n_owned, theta)
+        out = np.empty(pts.n_owned)
+        lps_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                           pts.fields["m"], theta, self.kappa, self.mu, pts.n_owned, out)
+        return float(np.dot(pts.vol[: pts.n_owned], out))

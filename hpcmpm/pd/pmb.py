@@ -144,3 +144,9 @@ class PMB:
         pmb_energy_density(pts.x, pts.x0, b.offsets, b.slot, b.status, b.weight, pts.vol,
                            self.c, pts.n_owned, out)
         return out
+
+    def strain_energy(self, pts) -> float:
+        """sum_p V_p W_p over the owned points: each intact bond's micropotential once (half
+        at each end). Reads the intact bonds of ``pts`` as they are (the caller breaks the
+        over-stretched ones on a copy first, `PDExtension.strain_energy`)."""
+        return float(np.dot(pts.vol[: pts.n_owned], self.energy_density(pts)))

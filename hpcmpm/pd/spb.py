@@ -73,8 +73,9 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
-from .families import find_families
+from .families import find_families, half_bonds_per_particle
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
+from .load import bond_cost
 from .moduli import equivalent_micromodulus, pmb_micromodulus
 
 log = logging.getLogger(__name__)
@@ -481,6 +482,26 @@ class SPBExtension(CheckpointedBonds):
         if self.bonds is not None and self.failure == "work":
             for name in WORK_STATE:
                 self.bonds.add_state(name)
+
+    # -- load balance -------------------------------------------------------------------------
+    def add_load(self, sim, weights: np.ndarray) -> None:
+        """`Simulation.load_weights`: a PD particle costs c_b (the correspondence model's,
+        pd/load.py) times its active half-bonds more, estimated as (1 - damage) times an
+        interior family's count: the damage is a particle field, so the weight travels with
+        the particle and is the same on every rank count, where the bond rows are not yet
+        aligned with the particles when the runner rebalances (after migration). Before any
+        conversion every weight stays 1 unit: the decomposition of the MPM scene (the units
+        are 64 = 2^6, so the bisection's quantiles and the imbalance are the count's, bitwise).
+        Over-estimates a PD particle whose neighbours are not PD yet (its bonds exist only to
+        PD partners)."""
+        p = sim.particles
+        rows = np.flatnonzero(p["model"] == 1)
+        if not len(rows):
+            return
+        family = half_bonds_per_particle(self.dim, self.delta / self.spacing, True)
+        active = (1.0 - p["damage"][rows]) * family
+        cost = sim.particle_weight * bond_cost(self.dim, "correspondence")
+        weights[rows] += np.rint(cost * active).astype(np.int64)
 
     # -- diagnostics --------------------------------------------------------------------------
     def margins(self, domain) -> dict:

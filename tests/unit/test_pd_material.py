@@ -3,7 +3,10 @@ without PD pays nothing for it."""
 
 import math
 
+import numpy as np
 import pytest
+
+from hpcmpm import cli
 
 from hpcmpm.errors import SceneError
 from hpcmpm.runner import make_domain
@@ -19,30 +22,118 @@ def sim_with(old: str, new: str) -> Simulation:
     return Simulation(scene, make_domain(scene))
 
 
-@pytest.mark.parametrize("old,new,message", [
+@pytest.mark.parametrize("old,new,line", [
     ("nu = 0.25 ", "nu = 0.3 ",
-     "material 'glass' (peridynamic): nu: a PMB solid in 2D plane strain has nu = 0.25, "
-     "got 0.3"),
+     "materials[0].nu: a PMB solid in 2D plane strain has nu = 0.25, got 0.3"),
     ('model = "pmb"', 'model = "pmb"\nplane = "stress"',
-     "nu: a PMB solid in 2D plane stress has nu = 0.333333, got 0.25"),
-    ("fracture_energy = 10.0", "fracture_energy = 0.0", "fracture_energy: must be > 0, got 0"),
-    ('model = "pmb"', 'model = "pmb"\nhorizon = 0.5', "horizon: must be >= 1, got 0.5"),
+     "materials[0].nu: a PMB solid in 2D plane stress has nu = 0.333333, got 0.25"),
+    ("fracture_energy = 10.0", "fracture_energy = 0.0",
+     "materials[0].fracture_energy: must be > 0, got 0"),
+    ("fracture_energy = 10.0", "fracture_energy = -2.0",
+     "materials[0].fracture_energy: must be > 0, got -2"),
+    ('model = "pmb"', 'model = "pmb"\nhorizon = 0.5',
+     "materials[0].horizon: must be >= 1, got 0.5"),
     ('model = "pmb"', 'model = "pmb"\nhorizon_length = 0.001',
-     "horizon_length: 0.001 is below one particle spacing 0.01"),
-    ("[[0.5, 0.7], [0.5, 0.6]]", "[[0.5, 1.7], [0.5, 0.6]]", "precracks[0]: outside the domain"),
+     "materials[0].horizon_length: 0.001 is below one particle spacing 0.01 "
+     "(simulation.dx / particles_per_cell)"),
+    ("[[0.5, 0.7], [0.5, 0.6]]", "[[0.5, 1.7], [0.5, 0.6]]",
+     "materials[0].precracks[0]: outside the domain (lower [0, 0], upper [1, 1])"),
     ("[[0.5, 0.7], [0.5, 0.6]]", "[[0.5, 0.7, 0.1], [0.5, 0.6, 0.1]]",
-     "precracks[0]: must be a segment of two points [x, y]"),
-    ('model = "pmb"', 'model = "correspondence"', "stress_material: missing"),
+     "materials[0].precracks[0]: must be a segment of two points [x, y]"),
+    ('model = "pmb"', 'model = "correspondence"',
+     "materials[0].stress_material: missing (the correspondence model evaluates another "
+     "material's stress)"),
     ('model = "pmb"', 'model = "correspondence"\nstress_material = "steel"',
-     "stress_material: no material named 'steel' (have: glass)"),
-    ('integration = "pd"', 'integration = "implicit"', "integration: unknown value"),
-    ('model = "pmb"', 'model = "pmb"\npartial_volumes = 1', "partial_volumes: must be true or "
-     "false"),
+     "materials[0].stress_material: no material named 'steel' (have: glass)"),
+    ('integration = "pd"', 'integration = "implicit"',
+     "materials[0].integration: unknown value 'implicit'"),
+    ('model = "pmb"', 'model = "pmb"\npartial_volumes = 1',
+     "materials[0].partial_volumes: must be true or false, got 1"),
 ])
-def test_bad_input_is_one_line(old, new, message):
-    with pytest.raises(SceneError) as err:
-        sim_with(old, new)
-    assert len(err.value.problems) == 1 and message in err.value.problems[0]
+def test_bad_input_is_one_line_with_exit_2(tmp_path, capsys, old, new, line):
+    """Through the CLI (`hpcmpm validate`): one line in the scene file's format, exit 2."""
+    assert old in PLATE
+    path = tmp_path / "plate.toml"
+    path.write_text(PLATE.replace(old, new))
+    assert cli.main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"hpcmpm: error: {path}: {line}")
+
+
+def test_pmb_in_3d_names_its_poisson_ratio(tmp_path, capsys):
+    path = tmp_path / "cube.toml"
+    path.write_text("""
+[simulation]
+dim = 3
+domain = { lower = [0.0, 0.0, 0.0], upper = [1.0, 1.0, 1.0] }
+dx = 0.1
+end_time = 1.0
+
+[[materials]]
+name = "glass"
+type = "peridynamic"
+density = 2500.0
+E = 7.2e10
+nu = 0.3
+
+[[bodies]]
+material = "glass"
+shape = "box"
+lower = [0.4, 0.4, 0.4]
+upper = [0.6, 0.6, 0.6]
+""")
+    assert cli.main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"hpcmpm: error: {path}: materials[0].nu: a PMB solid in 3D has "
+                   "nu = 0.25, got 0.3"]
+
+
+def test_too_many_bonds_are_refused_at_the_scene_level_with_the_number(tmp_path, capsys):
+    """A 300-spacing horizon: 283,656 half-bonds per interior particle (lattice points within
+    300.5 spacings, counted here), 21 B resident each (pd/bonds.py) plus 4 B of search
+    scratch, times 1600 particles (10.6 GiB); `hpcmpm validate` prints that estimate, and
+    `hpcmpm run` refuses it in one line before sampling when it exceeds the memory available
+    (patched to 4 GiB here)."""
+    ii, jj = np.meshgrid(np.arange(-301, 302), np.arange(-301, 302))
+    count = int(np.sum(ii * ii + jj * jj < 300.5 ** 2)) - 1
+    path = tmp_path / "plate.toml"
+    path.write_text(PLATE.replace('model = "pmb"', 'model = "pmb"\nhorizon = 300.0'))
+    assert cli.main(["validate", str(path)]) == 0
+    out = capsys.readouterr().out
+    bonds = 1600 * count * (21 + 4) / 2**30
+    assert f"{bonds:.1f} GiB for {count} half-bonds per particle of 'glass'" in out
+    from hpcmpm import startup
+    old = startup.available_memory
+    startup.available_memory = lambda: 4 * 2**30
+    try:
+        assert cli.main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet"]) == 2
+    finally:
+        startup.available_memory = old
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(
+        f"hpcmpm: error: {path}: materials[0].horizon: the scene needs 1,600 particles")
+    assert f"{count} half-bonds per particle" in err[0] and "lower materials[0].horizon" in err[0]
+
+
+def test_particles_without_bonds_are_a_warning_with_their_count(tmp_path, caplog):
+    """Two lone particles 5 spacings from anything (horizon 3.015 spacings): the run warns
+    once, in the scene file's format, with the count, and goes on."""
+    lone = "\n".join(f"""
+[[bodies]]
+name = "lone{k}"
+material = "glass"
+shape = "box"
+lower = [{x}, 0.1]
+upper = [{x + 0.01}, 0.11]
+""" for k, x in enumerate((0.1, 0.15)))
+    path = tmp_path / "plate.toml"
+    path.write_text(PLATE.replace("[walls]", lone + "\n[walls]"))
+    with caplog.at_level("WARNING"):
+        assert cli.main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet",
+                         "--end-time", "1e-6"]) == 0
+    warnings = [r.getMessage() for r in caplog.records if "no bond" in r.getMessage()]
+    assert warnings == [f"{path}: materials[0]: warning: 2 particle(s) of material 'glass' "
+                        "have no bond (horizon 0.03015, spacing 0.01): they move freely"]
 
 
 def test_scene_without_pd_pays_nothing():
@@ -79,7 +170,8 @@ def test_bonds_that_would_not_fit_are_refused_before_allocation(monkeypatch):
     # A machine of 1 MiB: 1600 particles x 36 half-bonds x 25 B do not fit in half of it.
     monkeypatch.setattr(os, "sysconf", lambda name: 1024 if name == "SC_PAGE_SIZE" else 1024)
     sim.ensure_grouped()
-    with pytest.raises(SceneError, match="36 half-bonds per particle need about"):
+    with pytest.raises(SceneError, match=r"plate.toml: materials\[0\].horizon: 36 half-bonds "
+                       r"per particle need about"):
         sim.extensions[0].prepare()
 
 

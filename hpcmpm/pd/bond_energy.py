@@ -1,0 +1,320 @@
+"""Bond-energy elasticity with bond plasticity (003 eq. 5.5-5.11): ``model = "bond_energy"``.
+
+Energy of a bond of p (eq. 5.5, with the issue's scale beta, which the thesis omits):
+
+    psi = beta w (mu (|Ybar|/|X| - 1 - e_p)^2 + lambda/2 (|Y|/|X| - 1 - e_p)^2),  Ybar = F_p X
+    W_p = sum_q psi V_q,    beta = d^2 K / ((2 mu + lambda) sum_q w V_q)  (full family)
+
+with K = lambda + 2 mu/d, w = omega * (partial volume) and F_p the correspondence deformation
+gradient (correspondence.py, eq. 4.4). beta makes an isotropic stretch s store d^2 K s^2/2
+(9 K s^2/2 in 3D, 2 kappa s^2 in 2D) in a full family. The force state is dpsi/dY with Ybar
+held fixed (eq. 5.6; its printed form 2 mu w/|X|^2 (Ybar - |X| dir Ybar) is this):
+
+    T_p<X> = (beta w / |X|) [2 mu (|Ybar|/|X| - 1 - e_p) dir(Ybar) + lambda (|Y|/|X| - 1 - e_p) dir(Y)]
+
+and f_p = sum_q (T_p<X> - T_q<-X>) V_p V_q. Under a small uniform strain Ybar = Y and this is
+a central-force solid (nu_eff = 1/4, whatever lambda/mu), and the Ybar term is not the exact
+gradient of sum_p V_p W_p (F_p depends on all of p's bonds): energy is not conserved exactly;
+scripts/study_bond_energy.py measures both.
+
+Bond plasticity (eq. 5.8-5.11 as corrected by the issue): with e = |Y|/|X| - 1, e_iso the
+point's mean bond stretch and e_dev = e - e_iso,
+
+    E_dev = (w beta (2 mu + lambda) / |X|) (e_dev - e_p),      f = E_dev^2 / 2 - psi_p  (5.10)
+    f > 0:  de_p = |X| (E_dev - sqrt(2 psi_p) sign E_dev) / (w beta (2 mu + lambda))
+
+which puts the bond exactly on f = 0 (eq. 5.11 divides by lambda instead of w (2 mu + lambda)
+and does not return to the yield surface). A return that would lengthen the bond's elastic
+stretch |e - e_p| is not taken (the bond stays outside the surface until the flow relaxes
+it): e_dev is measured from the neighbours' mean stretch, not from the bond's own energy, so
+such a return would store energy in the bond, negative plastic work. Without this guard a
+perfectly plastic 16 x 16 block whose bonds fail (s0 = 0.02) gains 33 % kinetic energy;
+with it, it loses 37 % (scripts/study_pd_models.py reports the elastic drift). e_iso = sum_q w |X| (|Y| - |X|) V_q / sum_q w |X|^2
+V_q (the LPS dilatation over d; `bond_iso_stretches`) instead of the issue's J^{1/d} - 1 of
+F_p: both are s for an isotropic stretch s and tr(eps)/d to first order, but once e_p has
+absorbed the deviatoric stretch the bond force is ~ e_iso, and J of a disordered (plastically
+flowed) family is unbounded: with J^{1/d} - 1 a perfectly plastic block gains energy without
+bound (velocities x1e9 in 2500 steps), with the bond dilatation it dissipates. e_p is a per-bond state (``bonds.state["plastic
+_stretch"]``) shared by both ends: e_iso is the mean of the two ends' J^{1/d} - 1, so both
+ends update it identically and the pair forces stay bitwise antisymmetric; the thesis's
+per-end e_p would need the other end's state. With ``plastic_yield`` set the force is eq.
+5.9 as printed: eq. 5.8's |Ybar| - |X| ~ |Y| - |X| in the mu term (direction still Ybar),
+
+    T_p<X> = (beta w / |X|) (e - e_p) [2 mu dir(Ybar) + lambda dir(Y)],
+
+and psi = beta w (mu + lambda/2) (e - e_p)^2. Keeping |Ybar| there instead would leave
+2 mu (|Ybar|/|X| - 1 - e_p) once e_p has absorbed the deviatoric part of e: a force of the
+size of |Ybar| - |Y| that no plastic flow bounds, which drives crushed regions unstable.
+Under a uniform deformation the two forms agree (Ybar = Y); psi_p = inf is eq. 5.6.
+
+Passes: `correspondence_kinematics` (failure on the total stretch, K, F) on owners, the halo
+refreshes F and ``active``, then `bond_energy_forces` (return map, forces). A detached point
+(correspondence.py) has no Ybar term.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .correspondence import correspondence_kinematics
+from .families import INFLUENCES
+from .geometry import bond_vectors, norm3
+
+PLASTIC_STATE = "plastic_stretch"
+
+
+def full_family_sum(dim: int, spacing: float, delta: float, influence: str = "constant",
+                    partial_volumes: bool = True, power: int = 0) -> float:
+    """sum_q w |X|^power V_q over the family of a lattice point with a complete neighbourhood
+    (cubic lattice of ``spacing``, V_q = spacing^d, the families.py bond rule)."""
+    h = spacing
+    r = delta + 0.5 * h if partial_volumes else delta
+    k = int(math.ceil(r / h))
+    axis = np.arange(-k, k + 1) * h
+    grids = np.meshgrid(*[axis] * dim, indexing="ij")
+    dist = np.sqrt(sum(g * g for g in grids)).ravel()
+    dist = dist[(dist > 0) & ((dist < r) if partial_volumes else (dist <= r))]
+    frac = np.minimum(1.0, (delta + 0.5 * h - dist) / h) if partial_volumes else 1.0
+    omega = [np.ones_like(dist), delta / dist, np.maximum(1 - dist / delta, 0),
+             np.exp(-(dist / delta) ** 2)][INFLUENCES.index(influence)]
+    return float(np.sum(omega * frac * dist ** power) * h ** dim)
+
+
+def bond_energy_scale(dim: int, lam: float, mu: float, family_sum: float) -> float:
+    """beta = d^2 K / ((2 mu + lambda) sum_q w V_q), K = lambda + 2 mu / d."""
+    bulk = lam + 2.0 * mu / dim
+    return dim * dim * bulk / ((2.0 * mu + lam) * family_sum)
+
+
+def time_step_micromodulus(dim: int, spacing: float, delta: float, influence: str,
+                           partial_volumes: bool, scale: float, lam: float, mu: float) -> float:
+    """c for the Silling-Askari rule sum_q V_q c w/|X| (moduli.py): a bond's axial stiffness
+    is 2 beta (2 mu + lambda) w V_p V_q/|X|^2 (a PMB bond's: c w V_p V_q/|X|), so the c that
+    gives the same sum over a full family."""
+    args = (dim, spacing, delta, influence, partial_volumes)
+    return 2.0 * scale * (2.0 * mu + lam) * full_family_sum(*args, power=-2) / \
+        full_family_sum(*args, power=-1)
+
+
+@njit(cache=True, error_model="numpy")
+def _apply(F, p, X0, X1, X2, dim):
+    """F_p X (third component 0 in 2D)."""
+    if dim == 2:
+        return F[p, 0, 0] * X0 + F[p, 0, 1] * X1, F[p, 1, 0] * X0 + F[p, 1, 1] * X1, 0.0
+    return (F[p, 0, 0] * X0 + F[p, 0, 1] * X1 + F[p, 0, 2] * X2,
+            F[p, 1, 0] * X0 + F[p, 1, 1] * X1 + F[p, 1, 2] * X2,
+            F[p, 2, 0] * X0 + F[p, 2, 1] * X1 + F[p, 2, 2] * X2)
+
+
+@njit(cache=True, error_model="numpy")
+def bond_iso_stretches(x, x0, vol, offsets, slot, status, weight, n_owned, out):
+    """out_p = sum_q w |X| (|Y| - |X|) V_q / sum_q w |X|^2 V_q over intact bonds: the LPS
+    dilatation over d, the mean bond stretch (= J^{1/d} - 1 for an isotropic stretch, tr eps/d
+    to first order for any uniform strain)."""
+    dim = x.shape[1]
+    for p in range(n_owned):
+        num = 0.0
+        den = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            q = slot[b]
+            y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
+            xl = norm3(X0, X1, X2)
+            wv = weight[b] * vol[q] * xl
+            num += wv * (norm3(y0, y1, y2) - xl)
+            den += wv * xl
+        out[p] = num / den if den > 0.0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def plastic_return(E_dev, k, xl, psi_p):
+    """de_p of the corrected eq. 5.11 (0 inside the yield surface); k = w beta (2 mu + lam)."""
+    if 0.5 * E_dev * E_dev - psi_p <= 0.0:
+        return 0.0
+    r = math.sqrt(2.0 * psi_p)
+    return xl * (E_dev - (r if E_dev > 0.0 else -r)) / k
+
+
+@njit(cache=True, error_model="numpy")
+def _bar_term(Fb0, Fb1, Fb2, xl, ep, act, plastic, s):
+    """(|Ybar|/|X| - 1 - e_p) dir(Ybar) (eq. 5.6), or (s - e_p) dir(Ybar) (eq. 5.9, plastic),
+    times the point's active flag."""
+    if act == 0.0:
+        return 0.0, 0.0, 0.0
+    n = norm3(Fb0, Fb1, Fb2)
+    c = ((s if plastic else n / xl - 1.0) - ep) / n
+    return c * Fb0, c * Fb1, c * Fb2
+
+
+@njit(cache=True, error_model="numpy")
+def bond_energy_forces(x, x0, vol, offsets, slot, status, weight, F, active, eiso, e_p,
+                       beta, lam, mu, psi_p, commit, n_owned, f):
+    """Return map of each intact bond (psi_p finite, ``commit``), then f_p = sum_q (T_p<X> -
+    T_q<-X>) V_p V_q (module docstring). F, active, eiso of owned + halo points."""
+    dim = x.shape[1]
+    stiff = 2.0 * mu + lam
+    plastic = psi_p < np.inf
+    for p in range(n_owned):
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            q = slot[b]
+            y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
+            xl = norm3(X0, X1, X2)
+            yl = norm3(y0, y1, y2)
+            s = yl / xl - 1.0
+            wb = beta * weight[b]
+            ep = e_p[b]
+            if plastic:
+                e_dev = s - 0.5 * (eiso[p] + eiso[q])
+                dep = plastic_return(wb * stiff * (e_dev - ep) / xl, wb * stiff, xl, psi_p)
+                # Dissipation: a return that would lengthen the elastic stretch s - e_p (and
+                # so store energy in the bond) is not taken (module docstring).
+                if abs(s - ep - dep) <= abs(s - ep):
+                    ep += dep
+                if commit:
+                    e_p[b] = ep
+            pb0, pb1, pb2 = _apply(F, p, X0, X1, X2, dim)
+            qb0, qb1, qb2 = _apply(F, q, X0, X1, X2, dim)
+            u0, u1, u2 = _bar_term(pb0, pb1, pb2, xl, ep, active[p], plastic, s)
+            v0, v1, v2 = _bar_term(qb0, qb1, qb2, xl, ep, active[q], plastic, s)
+            c_mu = 2.0 * mu * wb / xl * (vol[p] * vol[q])
+            c_lam = 2.0 * lam * wb / xl * (s - ep) / yl * (vol[p] * vol[q])
+            f0 += c_mu * (u0 + v0) + c_lam * y0
+            f1 += c_mu * (u1 + v1) + c_lam * y1
+            f2 += c_mu * (u2 + v2) + c_lam * y2
+        f[p, 0] = f0
+        f[p, 1] = f1
+        if dim == 3:
+            f[p, 2] = f2
+
+
+@njit(cache=True, error_model="numpy")
+def bond_energy_density(x, x0, vol, offsets, slot, status, weight, F, active, e_p, beta, lam,
+                        mu, plastic, n_owned, out):
+    """W_p = sum_q psi V_q over intact bonds (eq. 5.5 with beta; plastic: eq. 5.8's form)."""
+    dim = x.shape[1]
+    for p in range(n_owned):
+        s_w = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            q = slot[b]
+            y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
+            xl = norm3(X0, X1, X2)
+            s = norm3(y0, y1, y2) / xl - 1.0 - e_p[b]
+            sb = 0.0
+            if plastic:
+                sb = s
+            elif active[p] != 0.0:
+                pb0, pb1, pb2 = _apply(F, p, X0, X1, X2, dim)
+                sb = norm3(pb0, pb1, pb2) / xl - 1.0 - e_p[b]
+            s_w += beta * weight[b] * (mu * sb * sb + 0.5 * lam * s * s) * vol[q]
+        out[p] = s_w
+
+
+@njit(cache=True, error_model="numpy")
+def yield_values(x, x0, offsets, slot, status, weight, eiso, e_p, beta, lam, mu, psi_p,
+                 n_owned, out):
+    """f = E_dev^2/2 - psi_p of every half-bond (eq. 5.10; -inf for broken ones)."""
+    dim = x.shape[1]
+    stiff = 2.0 * mu + lam
+    for p in range(n_owned):
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                out[b] = -np.inf
+                continue
+            q = slot[b]
+            y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
+            xl = norm3(X0, X1, X2)
+            e_dev = norm3(y0, y1, y2) / xl - 1.0 - 0.5 * (eiso[p] + eiso[q])
+            E = beta * weight[b] * stiff * (e_dev - e_p[b]) / xl
+            out[b] = 0.5 * E * E - psi_p
+
+
+class BondEnergy:
+    """Bond-energy model over a points view (integrator.PDPoints).
+
+    Parameters
+    ----------
+    dim : 2 or 3.
+    lam, mu : Lame constants (2D: of the plane-strain solid).
+    scale : beta (`bond_energy_scale`).
+    plastic_yield : psi_p (inf: elastic).
+    critical_stretch : s0 (inf: no failure).
+    time_step_c : micromodulus for the Silling-Askari step.
+    """
+
+    name = "bond_energy"
+    persistent_fields: tuple[str, ...] = ()
+    halo_fields = ("F", "active", "eiso")
+
+    def __init__(self, dim: int, lam: float, mu: float, scale: float,
+                 plastic_yield: float = math.inf, critical_stretch: float = math.inf,
+                 time_step_c: float = 0.0):
+        self.dim = dim
+        self.lam = float(lam)
+        self.mu = float(mu)
+        self.beta = float(scale)
+        self.psi_p = float(plastic_yield)
+        self.s0 = float(critical_stretch)
+        self.c_dt = float(time_step_c)
+        self.F = None
+        self.resize(0)          # a rank may hold none of the body's particles
+
+    def time_step_micromodulus(self) -> float:
+        return self.c_dt
+
+    def setup(self, pts) -> None:
+        pts.bonds.add_state(PLASTIC_STATE)
+        self.resize(len(pts.x))
+
+    def resize(self, n: int) -> None:
+        if self.F is not None and len(self.F) == n:
+            return
+        d = self.dim
+        self.F = np.zeros((n, d, d))
+        self.F[:] = np.eye(d)
+        self.Kinv = np.zeros((n, d, d))
+        self.active = np.zeros(n)
+        self.eiso = np.zeros(n)
+
+    def update_state(self, pts) -> int:
+        b = pts.bonds
+        b.add_state(PLASTIC_STATE)
+        broken = correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                                           b.weight, self.s0, pts.n_owned, self.F, self.Kinv,
+                                           self.active)
+        bond_iso_stretches(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                           pts.n_owned, self.eiso)
+        return broken
+
+    def forces(self, pts, f, commit: bool = True) -> int:
+        b = pts.bonds
+        bond_energy_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                           self.F, self.active, self.eiso, b.state[PLASTIC_STATE], self.beta,
+                           self.lam, self.mu, self.psi_p, commit, pts.n_owned, f)
+        return 0
+
+    def energy_density(self, pts, out=None) -> np.ndarray:
+        b = pts.bonds
+        out = np.empty(pts.n_owned) if out is None else out
+        bond_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                            self.F, self.active, b.state[PLASTIC_STATE], self.beta, self.lam,
+                            self.mu, self.psi_p < math.inf, pts.n_owned, out)
+        return out
+
+    def yield_values(self, pts) -> np.ndarray:
+        b = pts.bonds
+        out = np.empty(b.n_bonds)
+        yield_values(pts.x, pts.x0, b.offsets, b.slot, b.status, b.weight, self.eiso,
+                     b.state[PLASTIC_STATE], self.beta, self.lam, self.mu, self.psi_p,
+                     pts.n_owned, out)
+        return out

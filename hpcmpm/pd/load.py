@@ -1,0 +1,31 @@
+"""Load-balance cost of peridynamic particles (issue 10: "load balance weighs particles by
+their active bonds, cost per half-bond measured").
+
+A PD particle costs ``1 + c_b * b`` MPM particles per step, b its active half-bonds
+(`Simulation.load_weights`, `Domain.decompose` / `rebalance`). c_b per dimension and model,
+measured with scripts/measure_pd_bond_cost.py: CPU time (`time.process_time`) of 40 steps of
+the same block as an MPM body (neo-Hookean, APIC, quadratic) and as an off-grid PD body,
+after 3 warm-up steps, the least of 5 runs on the shared 2-core machine (2026-11-30; the
+minimum is the run least disturbed by the other processes), c_b = (t_PD / t_MPM - 1) / b:
+
+    2D (6400 particles, 34.7 half-bonds each, MPM 111-119 ns per particle-step):
+        pmb 0.061, lps 0.158, correspondence 0.338
+    3D (13824 particles, 150.8 half-bonds each, MPM 433-467 ns per particle-step):
+        pmb 0.0122, lps 0.0327, correspondence 0.117
+
+(a 3D MPM particle costs 4x a 2D one, 27 nodes against 9, while a half-bond costs about
+the same: 8-10 ns for PMB).
+The PD step includes its halo refreshes and the full halo rebuild after each sort. A model
+not in the table (another module's) is weighed as the LPS of its dimension (a two-pass
+model).
+"""
+
+from __future__ import annotations
+
+BOND_COST = {(2, "pmb"): 0.061, (2, "lps"): 0.158, (2, "correspondence"): 0.338,
+             (3, "pmb"): 0.0122, (3, "lps"): 0.0327, (3, "correspondence"): 0.117}
+
+
+def bond_cost(dim: int, model: str) -> float:
+    """c_b: the cost of one active half-bond per step, in MPM particle-steps."""
+    return BOND_COST.get((dim, model), BOND_COST[(dim, "lps")])

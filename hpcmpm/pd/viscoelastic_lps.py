@@ -1,0 +1,256 @@
+"""Viscoelastic linearized LPS (003 eq. 5.12-5.20; Silling 2010 linearization, Mitchell 2011
+Maxwell relaxation): ``model = "viscoelastic_lps"``.
+
+The LPS (lps.py) is linearized about the configuration at the start of each step (the
+positions at the last force evaluation, Y_ref), which becomes the reference of that step's
+increment (003 eq. 5.17: the weighted volume with |Y|, not |X|):
+
+    m_p      = sum_q w |Y_ref|^2 V_q
+    theta_p  = (d / m_p) sum_q w |Y_ref| de V_q,       de = |Y| - |Y_ref|
+    dt_p     = (d kappa theta_p / m_p) |Y_ref| + (alpha_m / m_p) (de - theta_p |Y_ref| / d)
+                 `---- isotropic part ----'     `-------- deviatoric part -----------'
+
+with alpha_m = 15 mu (3D), 8 mu (2D), w = omega * (partial volume). This is M[x_p] . U (eq.
+5.12) with the issue's modulus state (eq. 5.19-5.20 are garbled: a lambda where mu belongs,
+9 lambda/S^2 - mu/S for the first factor):
+
+    M<Y1, Y2> = ((d^2 kappa - alpha_m) / m^2) w1 w2 Y1 (x) Y2 + (alpha_m / m) w1 dir1 (x) dir1 Delta(Y2 - Y1)
+
+(3D: (9 kappa - 15 mu)/m^2 and 15 mu/m), contracted with the bond displacement U = dY (eq.
+5.12's U[x_p]) to first order: dir . dY = de + O(dY^2). `modulus_state` assembles M for
+verification.
+
+Per bond (state arrays of `Bonds`, so they migrate and checkpoint with the bonds) the scalar
+pair force density is stored, split as Mitchell's VES model splits the extension state:
+
+    ve_iso  += w (dt_p,iso + dt_q,iso)                        accumulated (elastic volume)
+    ve_dev   = g ve_dev + w (dt_p,dev + dt_q,dev) * h(dt/tau)  Maxwell: g = exp(-dt/tau)
+    ve_len   = |Y|                                             the next step's reference
+
+with h(z) = (1 - exp(-z)) / z (1 when tau = inf), the exact Maxwell update for a deviatoric
+extension growing at a constant rate over the step (so steady shear gives exactly
+mu tau gamma_dot). The force on p is (ve_iso + ve_dev) V_p V_q Y/|Y|: the stored scalar acts
+along the current bond. Both ends of a bond update the same stored values from bitwise equal
+inputs (t_p + t_q is symmetric), so the pair forces cancel exactly and no reverse
+communication is needed.
+
+``memory = "none"`` is the literal reading of eq. 5.14, which drops T[x_p, t^{n-1}]: the force
+is the last increment only, ve_iso = w (dt_p,iso + dt_q,iso), ve_dev = w (...), i.e. a
+viscous fluid whose viscosity is proportional to the step (about mu dt, see
+scripts/study_viscoelastic_lps.py), kept for comparison with the thesis.
+
+tau = inf reproduces the total-Lagrangian LPS up to O(eps^2) in the strain (the stored
+increments use |Y_ref| where the LPS uses |X|). Failure: the total stretch
+(|Y| - |X|)/|X| > s0 (003 eq. 4.8), tested in the first pass on both ends.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .geometry import bond_vectors, norm3
+
+MEMORIES = ("maxwell", "none")
+STATE_FIELDS = ("ve_len", "ve_iso", "ve_dev")
+
+
+@njit(cache=True, error_model="numpy")
+def ve_initial_lengths(x0, offsets, slot, n_owned, ref_len):
+    """ve_len = |X| for half-bonds that have none yet (set-up; bonds merged mid-run)."""
+    dim = x0.shape[1]
+    for p in range(n_owned):
+        for b in range(offsets[p], offsets[p + 1]):
+            q = slot[b]
+            if ref_len[b] > 0.0 or q < 0:
+                continue
+            d2 = 0.0
+            for a in range(dim):
+                t = x0[q, a] - x0[p, a]
+                d2 += t * t
+            ref_len[b] = math.sqrt(d2)
+
+
+@njit(cache=True, error_model="numpy")
+def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owned, m, theta):
+    """Failure on the total stretch, then m_p = sum w |Y_ref|^2 V_q and the step's dilatation
+    increment theta_p = (d/m_p) sum w |Y_ref| (|Y| - |Y_ref|) V_q. Returns half-bonds broken."""
+    dim = x.shape[1]
+    broken = 0
+    for p in range(n_owned):
+        sm = 0.0
+        st = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            q = slot[b]
+            if q < 0:               # partner beyond the halo reach (pmb.py)
+                status[b] = 0
+                broken += 1
+                continue
+            y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
+            xl = norm3(X0, X1, X2)
+            yl = norm3(y0, y1, y2)
+            if (yl - xl) / xl > s0:
+                status[b] = 0
+                broken += 1
+                continue
+            r = ref_len[b]
+            wv = weight[b] * vol[q]
+            sm += wv * r * r
+            st += wv * r * (yl - r)
+        m[p] = sm
+        theta[p] = dim * st / sm if sm > 0.0 else 0.0
+    return broken
+
+
+@njit(cache=True, error_model="numpy")
+def _increments(theta, m, de, r, kappa, alpha_m, dim):
+    """(isotropic, deviatoric) scalar force increments of one end (without w)."""
+    if m <= 0.0:
+        return 0.0, 0.0
+    return (dim * kappa * theta / m) * r, (alpha_m / m) * (de - theta * r / dim)
+
+
+@njit(cache=True, error_model="numpy")
+def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, m, theta,
+              kappa, mu, decay, gain, memory_none, commit, n_owned, f):
+    """Per-bond stored forces updated with this step's increments (module docstring), then
+    f_p = sum_q (ve_iso + ve_dev) V_p V_q Y/|Y|. ``decay`` = exp(-dt/tau), ``gain`` =
+    (1 - decay)/(dt/tau); ``commit`` False leaves the state untouched (verification)."""
+    dim = x.shape[1]
+    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    for p in range(n_owned):
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for b in range(offsets[p], offsets[p + 1]):
+            if status[b] == 0:
+                continue
+            q = slot[b]
+            y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
+            yl = norm3(y0, y1, y2)
+            r = ref_len[b]
+            de = yl - r
+            ip, dp = _increments(theta[p], m[p], de, r, kappa, alpha_m, dim)
+            iq, dq = _increments(theta[q], m[q], de, r, kappa, alpha_m, dim)
+            w = weight[b]
+            if memory_none:
+                si = w * (ip + iq)
+                sd = w * (dp + dq)
+            else:
+                si = s_iso[b] + w * (ip + iq)
+                sd = decay * s_dev[b] + gain * (w * (dp + dq))
+            if commit:
+                s_iso[b] = si
+                s_dev[b] = sd
+                ref_len[b] = yl
+            a = (si + sd) * (vol[p] * vol[q]) / yl
+            f0 += a * y0
+            f1 += a * y1
+            f2 += a * y2
+        f[p, 0] = f0
+        f[p, 1] = f1
+        if dim == 3:
+            f[p, 2] = f2
+
+
+def modulus_state(x, vol, bonds, p: int, kappa: float, mu: float) -> np.ndarray:
+    """The issue's modulus state of point p about the current configuration (taken as the
+    reference: m with |Y|, eq. 5.17), as blocks M[i, j] (k, k, d, d) over p's intact bonds
+    i, j in segment order: dT_p<Y_i> = sum_j M[i, j] dY_j V_j (verification; plain numpy)."""
+    dim = x.shape[1]
+    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    sl = slice(bonds.offsets[p], bonds.offsets[p + 1])
+    keep = bonds.status[sl] != 0
+    q = bonds.slot[sl][keep]
+    w = bonds.weight[sl][keep]
+    Y = x[q] - x[p]
+    yl = np.linalg.norm(Y, axis=1)
+    m = np.sum(w * yl * yl * vol[q])
+    wy = w[:, None] * Y
+    M = ((dim * dim * kappa - alpha_m) / m ** 2) * np.einsum("ia,jb->ijab", wy, wy)
+    dirs = Y / yl[:, None]
+    k = len(q)
+    # Delta(Y2 - Y1) with the quadrature volume V_j: the diagonal block divided by V_i.
+    M[np.arange(k), np.arange(k)] += (alpha_m / m) * (w / vol[q])[:, None, None] * \
+        np.einsum("ia,ib->iab", dirs, dirs)
+    return M
+
+
+class ViscoelasticLPS:
+    """Viscoelastic LPS over a points view (integrator.PDPoints); per-bond state in
+    ``bonds.state`` (STATE_FIELDS), per-point m and theta recomputed each step and refreshed
+    in the halo.
+
+    Parameters
+    ----------
+    bulk : K (3D) or kappa (2D).
+    mu : shear modulus.
+    relaxation_time : tau of the deviatoric part (inf: elastic, the linearized LPS).
+    memory : "maxwell" (stored forces) or "none" (eq. 5.14 literally).
+    critical_stretch : s0 (inf: no failure).
+    time_step_c : micromodulus of the PMB solid with the same P-wave modulus.
+    """
+
+    name = "viscoelastic_lps"
+    persistent_fields: tuple[str, ...] = ()
+    halo_fields = ("m", "theta")
+
+    def __init__(self, bulk: float, mu: float, relaxation_time: float = math.inf,
+                 memory: str = "maxwell", critical_stretch: float = math.inf,
+                 time_step_c: float = 0.0):
+        if memory not in MEMORIES:
+            raise ValueError(f"memory must be one of {', '.join(MEMORIES)}, got {memory!r}")
+        self.kappa = float(bulk)
+        self.mu = float(mu)
+        self.tau = float(relaxation_time)
+        self.memory = memory
+        self.s0 = float(critical_stretch)
+        self.c_dt = float(time_step_c)
+        self.dt = math.nan          # the step being integrated (set by the driver)
+        self.m = np.empty(0)
+        self.theta = np.empty(0)
+
+    def time_step_micromodulus(self) -> float:
+        return self.c_dt
+
+    def relaxation(self, dt: float) -> tuple[float, float]:
+        """(decay, gain) = (exp(-dt/tau), (1 - exp(-dt/tau)) / (dt/tau))."""
+        if not math.isfinite(self.tau):
+            return 1.0, 1.0
+        z = dt / self.tau
+        decay = math.exp(-z)
+        return decay, (-math.expm1(-z) / z if z > 0.0 else 1.0)
+
+    def setup(self, pts) -> None:
+        b = pts.bonds
+        for name in STATE_FIELDS:
+            b.add_state(name)
+        self.resize(len(pts.x))
+
+    def resize(self, n: int) -> None:
+        if len(self.m) != n:
+            self.m = np.zeros(n)
+            self.theta = np.zeros(n)
+
+    def update_state(self, pts) -> int:
+        b = pts.bonds
+        for name in STATE_FIELDS:      # bonds restored or arrived without the state
+            b.add_state(name)
+        ve_initial_lengths(pts.x0, b.offsets, b.slot, pts.n_owned, b.state["ve_len"])
+        return ve_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                             b.state["ve_len"], self.s0, pts.n_owned, self.m, self.theta)
+
+    def forces(self, pts, f, commit: bool = True) -> int:
+        if self.memory == "maxwell" and math.isfinite(self.tau) and not self.dt > 0.0:
+            raise RuntimeError("viscoelastic_lps: the driver must set model.dt before forces")
+        decay, gain = self.relaxation(self.dt) if self.memory == "maxwell" else (1.0, 1.0)
+        b = pts.bonds
+        ve_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                  b.state["ve_len"], b.state["ve_iso"], b.state["ve_dev"], self.m,
+                  self.theta, self.kappa, self.mu, decay, gain, self.memory == "none",
+                  commit, pts.n_owned, f)
+        return 0

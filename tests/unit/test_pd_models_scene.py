@@ -1,0 +1,93 @@
+"""Scene keys of the 003 ch. 5 peridynamic models (hpcmpm/materials/pd_models.py): bad input
+is one line naming the key; the keys build the right model objects with the issue's
+constants (beta, the time-step micromodulus) and the crack-plane extension."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hpcmpm.errors import SceneError
+from hpcmpm.materials import make_material
+from hpcmpm.pd.bond_energy import BondEnergy, full_family_sum
+from hpcmpm.pd.viscoelastic_lps import ViscoelasticLPS
+from hpcmpm.runner import make_domain
+from hpcmpm.scene import parse_scene
+from hpcmpm.simulation import Simulation
+
+PLATE = open("inputs/pd_plate_tear_2d.toml").read()
+
+
+def sim_with(old: str, new: str) -> Simulation:
+    assert old in PLATE
+    scene = parse_scene(PLATE.replace(old, new), path="plate.toml")
+    return Simulation(scene, make_domain(scene))
+
+
+@pytest.mark.parametrize("old,new,message", [
+    ('model = "pmb"', 'model = "pmb"\nplastic_yield = 1.0',
+     "plastic_yield: only for model = bond_energy (got model = 'pmb')"),
+    ('model = "pmb"', 'model = "lps"\nrelaxation_time = 1.0',
+     "relaxation_time: only for model = viscoelastic_lps (got model = 'lps')"),
+    ('model = "pmb"', 'model = "bond_energy"\nmemory = "none"',
+     "memory: only for model = viscoelastic_lps"),
+    ('model = "pmb"', 'model = "viscoelastic_lps"\nmemory = "all"', "memory: unknown value"),
+    ('model = "pmb"', 'model = "viscoelastic_lps"\nrelaxation_time = -1.0',
+     "relaxation_time: must be > 0"),
+    ('model = "pmb"', 'model = "bond_energy"\nplastic_yield = -1.0',
+     "plastic_yield: must be > 0"),
+    ('model = "pmb"', 'model = "pmb"\ncrack_threshold = 0.05',
+     "crack_threshold: crack planes replace the stretch criterion; remove fracture_energy"),
+    ('model = "pmb"', 'model = "pmb"\ntwo_time_integration = 1',
+     "two_time_integration: must be true or false"),
+])
+def test_bad_input_is_one_line(old, new, message):
+    with pytest.raises(SceneError) as err:
+        sim_with(old, new)
+    assert len(err.value.problems) == 1 and message in err.value.problems[0]
+
+
+def configured(text: str):
+    scene = parse_scene(text, path="scene.toml")
+    material = make_material(scene.materials[0], scene.dim)
+    material.configure(scene)
+    return scene, material
+
+
+def test_bond_energy_keys_build_the_model_with_beta():
+    scene, mat = configured(PLATE.replace('model = "pmb"', 'model = "bond_energy"\n'
+                                          'plastic_yield = 100.0').replace("nu = 0.25 ",
+                                                                           "nu = 0.3 "))
+    model = mat.make_model()
+    assert isinstance(model, BondEnergy) and model.psi_p == 100.0
+    lam, mu, h, delta = mat.lam, mat.mu, mat.spacing, mat.delta
+    # beta = d^2 K / ((2 mu + lambda) sum_q w V_q), K = lambda + mu (2D), full family.
+    want = 4 * (lam + mu) / ((2 * mu + lam) * full_family_sum(2, h, delta))
+    assert abs(model.beta / want - 1) < 1e-14
+    E, nu = mat.params["E"], mat.params["nu"]
+    assert abs(lam / (E * nu / ((1 + nu) * (1 - 2 * nu))) - 1) < 1e-12
+    assert 0 < mat.dt_limit(scene.dx) < math.inf
+
+
+def test_viscoelastic_keys_build_the_model():
+    scene, mat = configured(PLATE.replace('model = "pmb"', 'model = "viscoelastic_lps"\n'
+                                          'relaxation_time = 0.5\nmemory = "none"')
+                            .replace("nu = 0.25 ", "nu = 0.3 "))
+    model = mat.make_model()
+    assert isinstance(model, ViscoelasticLPS)
+    assert (model.tau, model.memory, model.mu) == (0.5, "none", mat.mu)
+    decay, gain = ViscoelasticLPS(1.0, 1.0, relaxation_time=2.0).relaxation(0.1)
+    assert decay == math.exp(-0.05) and abs(gain - (1 - math.exp(-0.05)) / 0.05) < 1e-15
+
+
+def test_crack_threshold_selects_the_crack_plane_extensions():
+    from hpcmpm.pd.crack_planes import CrackPlaneIntegralMPM, CrackPlanePDBody
+
+    text = PLATE.replace("fracture_energy = 10.0", "crack_threshold = 0.05")
+    sim = Simulation(parse_scene(text, path="s.toml"),
+                     make_domain(parse_scene(text, path="s.toml")))
+    assert any(isinstance(e, CrackPlanePDBody) for e in sim._after_g2p)
+    text = text.replace('integration = "pd"', 'integration = "grid"')
+    scene = parse_scene(text, path="s.toml")
+    sim = Simulation(scene, make_domain(scene))
+    assert any(isinstance(e, CrackPlaneIntegralMPM) for e in sim._force_sources)

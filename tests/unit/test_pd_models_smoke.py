@@ -1,0 +1,50 @@
+"""Smoke runs of scripts/study_pd_models.py and scripts/study_kalthoff_winkler.py (tiny
+sizes): they exit 0 and write finite numbers for every measurement; the measured values
+(nu_eff, energy drift, memory = "none" viscosity, crack angles) are in their full runs,
+reported in docs/studies.md."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def numbers(obj):
+    if isinstance(obj, (int, float)) and not isinstance(obj, bool):
+        yield obj
+    elif isinstance(obj, dict):
+        for v in obj.values():
+            yield from numbers(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from numbers(v)
+
+
+def test_study_pd_models_smoke(tmp_path):
+    out = tmp_path / "study.json"
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "study_pd_models.py"),
+                           "--smoke", "--out", str(out)], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    data = json.loads(out.read_text())
+    assert all(math.isfinite(v) for v in numbers(data))
+    assert {e["model"] for e in data["energy"]} == {"bond_energy", "lps"}
+    assert data["elastic_constants"][0]["dim"] == 2
+    assert data["viscoelastic"]["maxwell"] and data["viscoelastic"]["none"]
+
+
+def test_study_kalthoff_winkler_smoke(tmp_path):
+    out = tmp_path / "kw.json"
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "study_kalthoff_winkler.py"),
+                           "--smoke", "--out", str(out)], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (row,) = json.loads(out.read_text())
+    assert row["steps"] > 0 and row["particles"] == 800
+    assert all(math.isfinite(row[k]) for k in ("s0", "dt", "wall_s"))

@@ -1,0 +1,245 @@
+"""Viscoelastic linearized LPS (003 eq. 5.12-5.20 as corrected by the issue;
+hpcmpm/pd/viscoelastic_lps.py): the modulus state is the derivative of the LPS force state
+(Taylor remainder slope 2), tau = inf reproduces the total-Lagrangian LPS (hpcmpm/pd/lps.py)
+to O(eps^2), a held shear relaxes as exp(-t/tau), steady shear gives the Maxwell stress
+mu tau gamma_dot, and memory = "none" (eq. 5.14 literally) is a viscosity mu dt."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hpcmpm.pd.families import find_families
+from hpcmpm.pd.integrator import PDPoints
+from hpcmpm.pd.lps import LPS, lps_bond_forces
+from hpcmpm.pd.viscoelastic_lps import ViscoelasticLPS, modulus_state
+from pd_helpers import lattice
+
+DELTA = 3.015
+RADIUS = DELTA + 0.5
+K, MU = 2.0, 1.2
+
+
+def points(dim, n, jitter=0.2, seed=0):
+    rng = np.random.default_rng(seed)
+    x0, ids = lattice(dim, n)
+    x0 = x0 + rng.uniform(-jitter, jitter, x0.shape)
+    fam = find_families(x0, ids, len(x0), 1.0, DELTA)
+    return PDPoints(x0.copy(), x0.copy(), np.ones(len(x0)), ids, len(x0), fam.bonds)
+
+
+def lps_force_state(X, Y, w, V, dim):
+    """Force state T<i> = w t dir(Y) of one point (the LPS as the issue writes it: m, theta,
+    e^d over the point's bonds, reference X, deformed Y), written here independently."""
+    alpha_m = (15.0 if dim == 3 else 8.0) * MU
+    xl = np.linalg.norm(X, axis=1)
+    yl = np.linalg.norm(Y, axis=1)
+    m = np.sum(w * xl ** 2 * V)
+    e = yl - xl
+    theta = dim / m * np.sum(w * xl * e * V)
+    t = dim * K * theta / m * xl + alpha_m / m * (e - theta * xl / dim)
+    return (w * t)[:, None] * Y / yl[:, None]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_modulus_state_is_the_derivative_of_the_lps_force_state(dim):
+    # Linearize about a deformed configuration Y0 (taken as the reference, eq. 5.17) and
+    # perturb by eps U: |T(Y0 + eps U) - eps M U| must fall as eps^2 (Taylor remainder).
+    pts = points(dim, 9 if dim == 2 else 7)
+    rng = np.random.default_rng(1)
+    y0 = pts.x0 @ (np.eye(dim) + 0.05 * rng.standard_normal((dim, dim))).T
+    p = int(np.argmin(np.linalg.norm(pts.x0 - pts.x0.mean(0), axis=1)))
+    b = pts.bonds
+    M = modulus_state(y0, pts.vol, b, p, K, MU)
+    q = b.slot[b.offsets[p]:b.offsets[p + 1]]
+    w = b.weight[b.offsets[p]:b.offsets[p + 1]]
+    Y0 = y0[q] - y0[p]
+    U = rng.standard_normal(Y0.shape)
+    predicted = np.einsum("ijab,jb,j->ia", M, U, pts.vol[q])
+    eps = np.array([4e-3, 2e-3, 1e-3, 5e-4])
+    rem = [np.abs(lps_force_state(Y0, Y0 + e * U, w, pts.vol[q], dim) - e * predicted).max()
+           for e in eps]
+    slope = np.polyfit(np.log(eps), np.log(rem), 1)[0]
+    # A first-order-wrong M gives slope 1; round-off (1e-16 of forces ~ eps) is far below
+    # the remainders (~eps^2 ~ 1e-7).
+    assert abs(slope - 2.0) < 0.05, (slope, rem)
+
+
+def shear_path(dim, x0, s, amplitude):
+    """A smooth non-affine deformation with a finite rotation, s in [0, 1]."""
+    c, sn = math.cos(0.4 * s), math.sin(0.4 * s)
+    R = np.eye(dim)
+    R[0, 0], R[0, 1], R[1, 0], R[1, 1] = c, -sn, sn, c
+    u = np.zeros_like(x0)
+    u[:, 0] = np.sin(0.3 * x0[:, 1]) + 0.5 * x0[:, 0]
+    u[:, 1] = np.cos(0.2 * x0[:, 0]) * x0[:, 1] * 0.3
+    if dim == 3:
+        u[:, 2] = np.sin(0.25 * x0[:, 0] + 0.1 * x0[:, 2])
+    return (x0 + s * amplitude * u) @ R.T
+
+
+def ve_final_force(dim, amplitude, steps=20):
+    pts = points(dim, 12 if dim == 2 else 7)
+    model = ViscoelasticLPS(K, MU)          # tau = inf
+    model.setup(pts)
+    model.dt = 1.0
+    f = np.empty((pts.n_owned, dim))
+    for k in range(1, steps + 1):
+        pts.x[:] = shear_path(dim, pts.x0, k / steps, amplitude)
+        model.update_state(pts)
+        model.forces(pts, f)
+    lps = LPS(K, MU)
+    lps.setup(pts)
+    lps.update_state(pts)
+    g = np.empty_like(f)
+    lps.forces(pts, g)
+    return f, g
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_infinite_tau_matches_total_lagrangian_lps_to_second_order(dim):
+    errs, scales = [], []
+    for amp in (2e-3, 1e-3):
+        f, g = ve_final_force(dim, amp)
+        errs.append(np.abs(f - g).max())
+        scales.append(np.abs(g).max())
+    # Forces ~ amp, their difference ~ amp^2 (m and the increments use |Y_ref| for |X|):
+    # halving the strain divides the difference by 4 (3.6-4.4: the O(amp^3) terms at
+    # amp ~ 1e-3 are a few per cent of the leading one).
+    assert 3.6 < errs[0] / errs[1] < 4.4, errs
+    assert errs[1] < 1e-2 * scales[1]
+    assert 1.9 < scales[0] / scales[1] < 2.1
+
+
+def affine_points(dim, n, gamma):
+    pts = points(dim, n, jitter=0.0)
+    pts.x[:] = pts.x0
+    pts.x[:, 0] += gamma * pts.x0[:, 1]
+    return pts
+
+
+def interior(x0, n):
+    return np.all((x0 >= 2 * RADIUS) & (x0 <= n - 1 - 2 * RADIUS), axis=1)
+
+
+def virial_shear(pts, pair_force, rows):
+    """sigma_xy = (1/(2 V_p)) sum_q f_pq,x Y_y per point (the pair forces of a homogeneous
+    state), averaged over ``rows``."""
+    b = pts.bonds
+    owner = np.repeat(np.arange(b.n), b.counts())
+    Y = pts.x[b.slot] - pts.x[owner]
+    s = np.zeros(b.n)
+    np.add.at(s, owner, 0.5 * pair_force[:, 0] * Y[:, 1] / pts.vol[owner])
+    return s[rows].mean()
+
+
+def stored_pair_forces(pts):
+    b = pts.bonds
+    owner = np.repeat(np.arange(b.n), b.counts())
+    Y = pts.x[b.slot] - pts.x[owner]
+    a = (b.state["ve_iso"] + b.state["ve_dev"]) * pts.vol[owner] * pts.vol[b.slot]
+    return (a / np.linalg.norm(Y, axis=1))[:, None] * Y * (b.status[:, None] != 0)
+
+
+N_SHEAR = 20
+
+
+def lattice_shear_modulus():
+    """mu of the discrete lattice: sigma_xy / gamma of the total-Lagrangian LPS (lps.py) under
+    a small affine shear, interior points."""
+    gamma = 1e-6
+    pts = affine_points(2, N_SHEAR, gamma)
+    lps = LPS(K, MU)
+    lps.setup(pts)
+    lps.update_state(pts)
+    out = np.empty((pts.bonds.n_bonds, 2))
+    b = pts.bonds
+    lps_bond_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                    pts.fields["m"], lps.theta, K, MU, pts.n_owned, out)
+    return virial_shear(pts, out, interior(pts.x0, N_SHEAR)) / gamma
+
+
+def run_shear(model, rate, dt, steps, hold=0):
+    """Affine simple shear gamma = rate t for ``steps`` steps, then held for ``hold`` steps;
+    returns the points and the stored s_dev after each held step."""
+    pts = affine_points(2, N_SHEAR, 0.0)
+    model.setup(pts)
+    model.dt = dt
+    f = np.empty((pts.n_owned, 2))
+    for k in range(1, steps + 1):
+        pts.x[:, 0] = pts.x0[:, 0] + rate * k * dt * pts.x0[:, 1]
+        model.update_state(pts)
+        model.forces(pts, f)
+    held = []
+    for _ in range(hold):
+        model.update_state(pts)
+        model.forces(pts, f)
+        held.append(pts.bonds.state["ve_dev"].copy())
+    return pts, held
+
+
+def test_held_shear_relaxes_exponentially():
+    tau, dt = 1.0, 0.1
+    model = ViscoelasticLPS(K, MU, relaxation_time=tau)
+    pts, held = run_shear(model, 1e-3 / dt, dt, steps=1, hold=40)
+    start = held[0]
+    big = np.abs(start) > 1e-3 * np.abs(start).max()
+    assert big.sum() > 100
+    for k, s in enumerate(held[1:], start=1):
+        # Held positions: the increments vanish exactly, so s_dev(t) = s_dev(t0) g^k with
+        # g = exp(-dt/tau); the only error is k roundings of the product (k <= 40 ulp).
+        rel = np.abs(s[big] / start[big] - math.exp(-k * dt / tau)).max()
+        assert rel < 1e-12, (k, rel)
+    # Interior points of a shear have theta = O(gamma^2): the isotropic part stays small.
+    b = pts.bonds
+    inner = np.repeat(interior(pts.x0, N_SHEAR), b.counts())
+    assert np.abs(b.state["ve_iso"][inner]).max() < 1e-2 * np.abs(start[inner]).max()
+
+
+def test_steady_shear_gives_maxwell_stress():
+    tau, dt = 1.0, 0.05
+    rate = 1e-4 / tau                 # gamma_dot tau = 1e-4: linear regime
+    mu_lat = lattice_shear_modulus()
+    # mu_lat differs from mu by the lattice sum of the partial-volume family (~1 %).
+    assert abs(mu_lat / MU - 1.0) < 0.05
+    model = ViscoelasticLPS(K, MU, relaxation_time=tau)
+    steps = int(round(10 * tau / dt))          # transient exp(-10) = 5e-5
+    pts, _ = run_shear(model, rate, dt, steps)
+    sigma = virial_shear(pts, stored_pair_forces(pts), interior(pts.x0, N_SHEAR))
+    # Maxwell: sigma -> mu tau gamma_dot (1 - exp(-t/tau)); 2 % (the issue's tolerance)
+    # covers the O(gamma) geometric terms (gamma = 1e-3) and the transient.
+    assert abs(sigma / (mu_lat * tau * rate) - 1.0) < 0.02, sigma / (mu_lat * tau * rate)
+
+
+def test_memory_none_is_a_viscosity_proportional_to_dt():
+    rate = 1e-3
+    ratios = []
+    for dt in (0.02, 0.01):
+        model = ViscoelasticLPS(K, MU, memory="none")
+        pts, _ = run_shear(model, rate, dt, steps=10)
+        sigma = virial_shear(pts, stored_pair_forces(pts), interior(pts.x0, N_SHEAR))
+        ratios.append(sigma / (lattice_shear_modulus() * rate * dt))
+    # The force is the last step's increment: sigma = mu gamma_dot dt, i.e. a viscosity
+    # eta = mu dt; 1 % covers O(gamma) terms (gamma <= 2e-4).
+    for r in ratios:
+        assert abs(r - 1.0) < 0.01, ratios
+
+
+def test_bond_state_is_bitwise_symmetric_and_forces_cancel():
+    pts = points(2, 10)
+    model = ViscoelasticLPS(K, MU, relaxation_time=0.5)
+    model.setup(pts)
+    model.dt = 0.1
+    f = np.empty((pts.n_owned, 2))
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        pts.x += 1e-3 * rng.standard_normal(pts.x.shape)
+        model.update_state(pts)
+        model.forces(pts, f)
+    b = pts.bonds
+    owner = np.repeat(np.arange(b.n), b.counts())
+    pos = {(int(o), int(q)): k for k, (o, q) in enumerate(zip(owner, b.slot))}
+    mirror = np.array([pos[(int(q), int(o))] for o, q in zip(owner, b.slot)])
+    for name in ("ve_len", "ve_iso", "ve_dev"):
+        assert np.array_equal(b.state[name], b.state[name][mirror]), name
+    assert np.abs(f.sum(axis=0)).max() < 1e-13 * np.abs(f).sum()
