@@ -162,7 +162,8 @@ def pd_stress(material, fields: dict, F: np.ndarray, tau: np.ndarray) -> None:
     """Kirchhoff stress tau (k, d, d) of ``material`` at the PD deformation gradients F
     (k, d, d) of particles whose fields (rows gathered into ``fields``) hold the rest of
     their state (003 Alg. 3 line 15 as corrected: sigma^PD from the particle's own material).
-    Snow evaluates its elastic part F_E = F^PD F_P^-1 with its hardening."""
+    Snow evaluates its elastic part F_E = F^PD F_P^-1 with its hardening; the impact
+    models give their own stress (`ImpactMaterial.pd_stress`)."""
     from .base import ElasticMaterial
     from .snow import Snow
 
