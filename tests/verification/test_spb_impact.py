@@ -212,7 +212,7 @@ end_time = 0.06
 name = "disk"
 density = 1.0
 {model}
-failure = {{ model = "spb", grid_energy = 20.0, bond_energy = 0.05 }}
+failure = {{ model = "spb", grid_energy = 300.0, bond_energy = 0.05 }}
 [[bodies]]
 material = "disk"
 shape = "sphere"
@@ -228,9 +228,10 @@ angular_velocity = 20.0
     'type = "j2"\nE = 1.0e3\nnu = 0.3\nhardening = { type = "johnson_cook", A = 40.0, B = 20.0 }',
 ], ids=["shock", "j2"])
 def test_momentum_through_mode_l_conversions(model):
-    """A free spinning, drifting disk of an impact model whose rim converts and tears (the
-    mode-L re-transfer corrects L, PD stress from the material's state): sum m v stays at
-    its initial value to 1e-12 of sum m |v|, the state stays finite."""
+    """A free spinning, drifting disk of an impact model that converts (all but a few
+    particles, over several steps: MPM and PD particles share the grid) and tears (the mode-L
+    re-transfer corrects L, PD stress from the material's state): sum m v stays at its
+    initial value to 1e-12 of sum m |v|, the state stays finite."""
     sim = build(DISK.format(model=model), "<disk>")
     p = sim.particles
     p0 = (p["mass"][:, None] * p["v"]).sum(axis=0)
@@ -245,7 +246,7 @@ def test_momentum_through_mode_l_conversions(model):
     ext = sim.extensions[0]
     print(f"momentum drift {max(drift):.2e} over {len(drift)} steps; PD {ext.pd_global} of "
           f"{p.n}, half-bonds broken {ext.broken}")
-    assert ext.pd_global > 0.1 * p.n and ext.broken > 0     # conversions and tearing
+    assert 0.1 * p.n < ext.pd_global < p.n and ext.broken > 0     # conversions, tearing
     assert np.isfinite(p["J"]).all() and np.abs(p["x"] - 2.0).max() < 1.5
     # Round-off only: about 1e-16 per step and operation.
     assert max(drift) < 1e-12
