@@ -48,6 +48,8 @@ cu_shock_column_2d     -  pressure -1
 shock_wall_2d          -  pressure -1
 taylor_cu_3d           -  eps_p   -1
 container_drop_3d      -  eps_p   -1
+gelatin_bullet_3d      -  pressure -1
+watermelon_3d          -  damage  -1
 '
 
 line_of() { awk -v s="$1" '$1 == s { print; exit }' <<<"$TABLE"; }
