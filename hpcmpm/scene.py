@@ -487,6 +487,7 @@ def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_co
     silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
     what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
     from .materials import make_material
+    from .materials.failure import failure_scene_problems
     from .simulation import deformation_mode, particle_field_specs
     from .solvers import INTEGRATORS
     from .state import CORE_FIELDS
@@ -505,6 +506,9 @@ def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_co
                 c.problem(f"materials[{i}]", problem)
     if len(instances) < len(materials):
         return
+    # SPB-MPM: combinations it cannot run (the transfer, the integrator, shared keys).
+    for key, what in failure_scene_problems(instances, transfer, integrator):
+        c.problem(key, what)
     mode = deformation_mode(instances, INTEGRATORS[integrator].needs_velocity_gradient)
     valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, transfer,
                                                           bool(prescribed))) + ["tau"]

@@ -155,6 +155,7 @@ class Simulation:
         self.extensions: list = []
         self._force_sources: list = []
         self._after_g2p: list = []
+        self._before_state: list = []
         self._stress_hooks: list = []
         # A material that works through a step extension (peridynamics, SPB-MPM) makes its
         # own (None: one it shares was made already).
@@ -189,6 +190,10 @@ class Simulation:
             self._force_sources.append(extension)
         if hasattr(extension, "after_g2p"):
             self._after_g2p.append(extension)
+        # SPB-MPM's re-transfer (003 Alg. 3): ``before_state(sim, dt)`` runs between G2P and
+        # the materials' state update, so the update sees the corrected F or L.
+        if hasattr(extension, "before_state"):
+            self._before_state.append(extension)
         # SPB-MPM (003 eq. 6.10): ``stress_chunk(sim, g, start, stop, tau, dt)`` sees each
         # chunk's Kirchhoff stress between the material kernel and P2G (and may zero rows
         # of it); ``grid_scattered`` names scalar grid fields it scatters there, summed to
@@ -455,7 +460,10 @@ class Simulation:
 
     def update_states(self, dt: float) -> None:
         """After G2P: each material advances its state over ``dt`` (the F or b_E update
-        from L in mode L, the plastic return map), so frames hold the projected state."""
+        from L in mode L, the plastic return map), so frames hold the projected state.
+        Extensions' ``before_state`` first (SPB-MPM corrects F or L there)."""
+        for extension in self._before_state:
+            extension.before_state(self, dt)
         if not self._state_groups:
             return
         with self.phase("state"):

@@ -39,15 +39,17 @@ pd_jelly_stretch_3d    -  damage  -1
 kalthoff_winkler_2d    -  damage  -1
 ibmpm_bar_2d           -  v:x     -1
 ibmpm_disk_impact_2d   -  damage  -1
-ibmpm_ball_board_3d    -  damage  -1
+ibmpm_ball_board_3d    -  speed   -1
 ibmpm_wall_fracture_2d -  damage  -1
-ibmpm_cream_pie_2d     -  damage  -1
+ibmpm_cream_pie_2d     -  damage  9
 spb_stretched_bar_2d   -  damage  -1
 spb_chocolate_drop_3d  -  damage  -1
 cu_shock_column_2d     -  pressure -1
 shock_wall_2d          -  pressure -1
 taylor_cu_3d           -  eps_p   -1
 container_drop_3d      -  eps_p   -1
+gelatin_bullet_3d      -  pressure -1
+watermelon_3d          -  damage  -1
 '
 
 line_of() { awk -v s="$1" '$1 == s { print; exit }' <<<"$TABLE"; }

@@ -16,9 +16,11 @@ printed, "work" the accumulated work, "stretch" eq. 4.8 with ``critical_stretch`
 ``max_bond_stretch`` (every bond breaks beyond it; sets the PD halo reach).
 
 A material takes part when its class lists ``"failure": SPB_FAILURE`` in ``parameters`` and can
-give a stress for peridynamics at a deformation gradient F^PD (`pd_stress`): the elastic models
-and snow (F_E = F^PD F_P^-1). Any other material with a ``failure`` table is a one-line scene
-error (`no_pd_stress_problem`).
+give a stress for peridynamics at a deformation gradient F^PD (`pd_stress`): the elastic models,
+snow (F_E = F^PD F_P^-1) and the impact models of deformation mode "L" (`shock`, `j2`: their own
+stress from their own state, 003 §7.2.2 "reuse the MPM pressure"; they carry no total F). Any
+other material with a ``failure`` table is a one-line scene error (`no_pd_stress_problem`);
+combinations SPB-MPM cannot run are listed by `failure_scene_problems`.
 """
 
 from __future__ import annotations
@@ -71,7 +73,60 @@ SPB_FIELDS = {
 
 def no_pd_stress_problem(type_name: str) -> str:
     return (f"failure: material type {type_name!r} has no stress for peridynamics "
-            f"(SPB-MPM needs a deformation-gradient model: an elastic model or snow)")
+            f"(SPB-MPM needs an elastic model, snow, shock or j2)")
+
+
+# Keys every SPB material of a scene must agree on: one extension, one bond set.
+SHARED_KEYS = ("coupling", "bond_failure", "critical_stretch", "influence", "horizon",
+               "max_bond_stretch")
+
+
+def failure_scene_problems(materials, transfer: str, integrator: str) -> list[tuple[str, str]]:
+    """(key path, what is wrong) for each combination SPB-MPM cannot run, given the
+    material instances of a scene: MLS transfer (the re-transfer recomputes C as the
+    velocity gradient), the explicit integrator (Alg. 3 is an explicit step), a Young's
+    modulus where eq. 6.10's tensile energy divides by it, and the keys the SPB materials
+    share. Deformation modes "F" and "L" both work: in mode "L" the re-transfer corrects
+    the stored L before the materials' state update, and eq. 6.10 divides tau by the
+    material's own volume ratio J where it carries no F (`shock`, `j2`)."""
+    groups = [g for g, m in enumerate(materials) if getattr(m, "failure", None)]
+    if not groups:
+        return []
+    first = f"materials[{groups[0]}].failure"
+    problems = []
+    if transfer != "mls":
+        problems.append((first, f"SPB-MPM needs simulation.transfer = 'mls' (the re-transfer "
+                                f"recomputes C as the velocity gradient), got {transfer!r}"))
+    if integrator != "explicit":
+        problems.append((first, f"SPB-MPM needs simulation.integrator = 'explicit' (003 "
+                                f"Alg. 3 is an explicit step), got {integrator!r}"))
+    for g in groups:
+        m = materials[g]
+        if m.failure["energy"] == "tensile_energy" and not m.params.get("E", 0.0) > 0.0:
+            problems.append((f"materials[{g}].failure.energy",
+                             "'tensile_energy' divides by Young's modulus: needs E > 0"))
+    specs = [materials[g].failure for g in groups]
+    names = [materials[g].spec.name for g in groups]
+    for key in SHARED_KEYS:
+        values = {repr(s[key]) for s in specs}
+        if len(values) > 1:
+            problems.append((f"{first}.{key}", f"SPB materials "
+                                               f"{', '.join(map(repr, names))} must agree, "
+                                               f"got {', '.join(sorted(values))}"))
+    return problems
+
+
+def pd_moduli(dim: int, material) -> tuple[float, float]:
+    """(bulk, shear) modulus of a material for its peridynamic micromoduli (stabilization and
+    PD time step): from E and nu, or, for a model with a volumetric response of its own (an
+    EOS: `shock`, `j2`), dp/dzeta at rest (rho0 c0^2, or K) and its shear modulus."""
+    from ..pd.moduli import bulk_modulus, shear_modulus
+
+    vol = getattr(material, "volumetric_response", None)
+    if vol is not None:
+        return float(vol.K), float(material.mu)
+    E, nu = material.params["E"], material.params["nu"]
+    return bulk_modulus(dim, E, nu), shear_modulus(E, nu)
 
 
 def attach_failure(material) -> None:
@@ -107,7 +162,8 @@ def pd_stress(material, fields: dict, F: np.ndarray, tau: np.ndarray) -> None:
     """Kirchhoff stress tau (k, d, d) of ``material`` at the PD deformation gradients F
     (k, d, d) of particles whose fields (rows gathered into ``fields``) hold the rest of
     their state (003 Alg. 3 line 15 as corrected: sigma^PD from the particle's own material).
-    Snow evaluates its elastic part F_E = F^PD F_P^-1 with its hardening."""
+    Snow evaluates its elastic part F_E = F^PD F_P^-1 with its hardening; the impact
+    models give their own stress (`ImpactMaterial.pd_stress`)."""
     from .base import ElasticMaterial
     from .snow import Snow
 

@@ -91,6 +91,22 @@ class ImpactMaterial(Material):
                                          self.shear_term, *self.volumetric_response.args,
                                          *self.viscosity_args()))
 
+    def pd_stress(self, fields, F, tau) -> None:
+        """SPB-MPM's sigma^PD (003 Alg. 3 line 15, corrected): the particle's own Cauchy
+        stress from its own state (shock: the deviator of F_E and the MPM pressure, "reuse
+        the MPM pressure" of 003 §7.2.2; j2: s - (p + q) I), so the bonds carry the stress
+        the material has; these models keep no total F to evaluate at F^PD. The Kirchhoff
+        stress handed to the correspondence force (P = tau F^-T) is det(F^PD) sigma, so
+        P = sigma cof(F^PD) stays bounded for a family that has nearly collapsed (J sigma
+        F^-T with the material's J blew up there: a watermelon run crushed a rind particle
+        to rho/rho0 = 12); a family with det F^PD <= 0 carries none. ``fields`` holds the PD
+        rows' state and their stored L."""
+        self.update_stress({**fields, "tau": tau}, 0.0)
+        J = fields["J"]
+        detF = np.linalg.det(F) if len(F) else np.empty(0)
+        scale = np.where(detF > 0.0, detF / J, 0.0)
+        tau *= scale[:, None, None]
+
     def energy(self, fields) -> float:
         """sum_p vol0_p E_p: the internal energy (elastic and dissipated) of the slice."""
         return float(np.dot(fields["vol0"], fields["E"]))

@@ -57,6 +57,7 @@ from ..state import SCALAR, TENSOR, FieldSpec
 from .base import POISSON, YOUNG, Param, choice, lame, table
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
+from .failure import SPB_FAILURE, SPB_FIELDS
 from .impact import ImpactMaterial, kirchhoff2, kirchhoff3
 from .tensors import det3, load2, load3, store2, store3
 
@@ -371,6 +372,7 @@ class J2Plasticity(ImpactMaterial):
                                    "thermal softening; isothermal if absent"),
         "eos": table(EOS_SCHEMA, doc="equation of state table; p = -K ln J if absent"),
         **VISCOSITY_PARAMS,
+        "failure": SPB_FAILURE,
     }
     # Every field a j2 material may carry (what the scene validator reads from the class);
     # an instance declares its own subset: s_zz in 2D only, T only with specific_heat.
@@ -405,6 +407,8 @@ class J2Plasticity(ImpactMaterial):
             fields["s_zz"] = type(self).fields["s_zz"]
         if self.thermal:
             fields["T"] = FieldSpec(SCALAR, "f8", float(h["T_room"]))
+        if self.failure:             # SPB-MPM (attach_failure declared them on the class's)
+            fields.update(SPB_FIELDS)
         self.fields = fields
         self._state = _update_state_2d if dim == 2 else _update_state_3d
         self._stress = _stress_2d if dim == 2 else _stress_3d

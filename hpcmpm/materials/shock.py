@@ -35,6 +35,7 @@ from .base import POISSON, Param, lame, table
 from .decompositions import svd2, svd3
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
+from .failure import SPB_FAILURE
 from .impact import ImpactMaterial, kirchhoff2, kirchhoff3
 from .tensors import (det2, det3, frob2, frob3, load2, load3, mul2, mul2_bt, mul3, mul3_bt,
                       store2, store3)
@@ -173,6 +174,7 @@ class ShockModel(ImpactMaterial):
                          doc="snow clamp: singular values of F_E <= 1 + theta_s; none if absent"),
         "eos": table(EOS_SCHEMA, required=True, doc="equation of state table"),
         **VISCOSITY_PARAMS,
+        "failure": SPB_FAILURE,
     }
     fields = {"F_E": FieldSpec(TENSOR, "f8", "identity"), "J": FieldSpec(SCALAR, "f8", 1.0),
               "E": FieldSpec(SCALAR, "f8", 0.0), "pressure": FieldSpec(SCALAR, "f8", 0.0)}

@@ -30,6 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..kernels.deformation import volume_ratio
 from ..kernels.shape import stencil_base, weights
 
 ENERGIES = ("stress_squared", "tensile_energy")
@@ -142,9 +143,9 @@ def _phi(pp, tr, code, E, nu):
 
 @njit(cache=True, inline="always")
 def phi_2d(tau, F, p, code, E, nu):
-    """Phi(sigma+) of row p, sigma = tau / det F (2D)."""
-    J = F[p, 0, 0] * F[p, 1, 1] - F[p, 0, 1] * F[p, 1, 0]
-    inv = 1.0 / J
+    """Phi(sigma+) of row p, sigma = tau / det F (2D); F may be the (n,) volume ratio J of a
+    material that carries no F (`kernels.deformation.volume_ratio`)."""
+    inv = 1.0 / volume_ratio(F, p)
     p00, p01, p11 = tensile_part_2d(tau[p, 0, 0] * inv,
                                     0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv,
                                     tau[p, 1, 1] * inv)
@@ -163,10 +164,7 @@ def phi_3d(tau, F, p, code, E, nu, floor):
     max(1 + nu, 1 - 2 nu) / (2E) for tensile_energy, since sigma+:sigma+ <= sigma:sigma and
     (tr sigma+)^2 <= 3 sigma+:sigma+) is below ``floor`` (the history EE_p), and when the
     Gershgorin discs put every eigenvalue on one side of 0 (sigma+ = sigma or 0)."""
-    J = (F[p, 0, 0] * (F[p, 1, 1] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 1])
-         - F[p, 0, 1] * (F[p, 1, 0] * F[p, 2, 2] - F[p, 1, 2] * F[p, 2, 0])
-         + F[p, 0, 2] * (F[p, 1, 0] * F[p, 2, 1] - F[p, 1, 1] * F[p, 2, 0]))
-    inv = 1.0 / J
+    inv = 1.0 / volume_ratio(F, p)
     s00, s11, s22 = tau[p, 0, 0] * inv, tau[p, 1, 1] * inv, tau[p, 2, 2] * inv
     s01 = 0.5 * (tau[p, 0, 1] + tau[p, 1, 0]) * inv
     s02 = 0.5 * (tau[p, 0, 2] + tau[p, 2, 0]) * inv

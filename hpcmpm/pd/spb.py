@@ -10,8 +10,9 @@ What the engine calls, and when:
   with the engine's mass (turned into G_i on the owners and filled into the ghosts after G2P). With ``coupling =
   "exclusive"`` the stress of PD particles is zeroed before P2G (their internal force is
   their bonds'); ``"additive"`` keeps it (Alg. 3 as printed).
-- ``after_g2p`` (phases "spb_convert", "pd", "spb_retransfer"), with x = x^ = x^n + dt v^ and
-  v = v^ from G2P (MLS: x^n = x - dt v):
+- ``before_state`` (phases "spb_convert", "pd", "spb_retransfer"; after G2P, before the
+  materials' state update), with x = x^ = x^n + dt v^ and v = v^ from G2P (MLS:
+  x^n = x - dt v):
   1. conversion: an MPM particle of an SPB material whose cell at x^n has a corner node with
      G_i = l0 e_i / m_i >= G_EE becomes PD (field ``model`` 0 -> 1; irreversible; same id,
      same rows: no array is copied). Owners decide from the ghost-summed and filled G_i.
@@ -23,7 +24,8 @@ What the engine calls, and when:
      it from the same bits; the end that already was PD sends the other end its half-bond.
   3. PD evolution at x^ (Alg. 3 lines 3-21, corrected): K, F^PD = (sum w Y (x) X V) K^-1
      (K^-1 after the sum), sigma^PD from the particle's own material at F^PD (snow at
-     F^PD F_P^-1), T = w P K^-1 X (eq. 6.8 = 4.7 with the P^T correction), force eq. 6.6
+     F^PD F_P^-1; shock and j2, which keep no total F: their own stress, handed over as
+     tau = det(F^PD) sigma, `ImpactMaterial.pd_stress`), T = w P K^-1 X (eq. 6.8 = 4.7 with the P^T correction), force eq. 6.6
      times V_p with Silling's zero-energy-mode control, v = v^ + dt f/m and x = x^n + dt v
      (line 21 prints x^ + dt v, which advances twice); then failure (energy_failure.py: eq.
      6.11 as printed or the accumulated work; or eq. 4.8) and damage.
@@ -32,7 +34,10 @@ What the engine calls, and when:
      conditions applied again) and filled into ghosts; every particle touching a corrected
      node gets C^{n+1} = C^ + D^-1 sum_i w_ip dv_i (x_i - x^n)^T and F^{n+1} = (I + dt
      C^{n+1}) F^n = (I + dt C^{n+1})(I + dt C^)^-1 F (exact algebra, no stored F^n); MPM
-     particles keep v^ (as the thesis). Snow's clamp is applied again to the corrected F_E.
+     particles keep v^ (as the thesis). In deformation mode "L" (the impact models) G2P
+     stored L = C^ and advanced nothing: the re-transfer adds the same increment to L, and
+     the materials' state update that follows (F, F_E, s, J, E, plastic return) sees the
+     corrected L, as snow's clamp sees the corrected F in mode "F".
      Not in the thesis: what the boundaries (walls, colliders, clamps) take from the
      corrected grid velocity reaches every particle in their reach, and a PD particle whose
      stencil holds such a node takes the corrected grid velocity instead of its own (a grid
@@ -43,8 +48,10 @@ Pay for use: before the first conversion the step adds only the stress-chunk wor
 scalar grid field; the PD halo, bonds, the re-transfer grid field and the PD time-step bound
 exist only once PD particles do (`pd_global` > 0, agreed by all ranks).
 
-Restrictions (scene errors): MLS transfer (the re-transfer recomputes C, and C is the velocity
-gradient only for MLS) and deformation mode "F" (no material that needs the velocity gradient).
+Restrictions (scene errors, `materials.failure.failure_scene_problems`): MLS transfer (the
+re-transfer recomputes C, and C is the velocity gradient only for MLS) and the explicit
+integrator. Deformation modes "F" and "L" (shock, j2 and elastic materials in one scene); eq.
+6.10 divides tau by det F, or by the material's own J where it carries no F.
 """
 
 from __future__ import annotations
@@ -57,9 +64,8 @@ from numba import njit
 
 from ..errors import SceneError
 from ..kernels.shape import stencil_base, weights
-from ..kernels.transfer import MLS, SCATTER_FORCES
-from ..materials.base import Material
-from ..materials.failure import SPB_FIELDS, pd_stress
+from ..kernels.transfer import SCATTER_FORCES
+from ..materials.failure import SPB_FIELDS, failure_scene_problems, pd_moduli, pd_stress
 from ..parallel.exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
 from ..parallel.pd_halo import TAG_PD_BONDS, PDHalo, align_rows, redistribute_segments
 from ..state import VECTOR
@@ -71,13 +77,9 @@ from .extension import CheckpointedBonds
 from .families import find_families, half_bonds_per_particle
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
 from .load import bond_cost
-from .moduli import bulk_modulus, equivalent_micromodulus, pmb_micromodulus, shear_modulus
+from .moduli import equivalent_micromodulus, pmb_micromodulus
 
 log = logging.getLogger(__name__)
-
-SHARED_KEYS = ("coupling", "bond_failure", "critical_stretch", "influence", "horizon",
-               "max_bond_stretch")
-
 
 class SPBExtension(CheckpointedBonds):
     """SPB-MPM state of one rank (module docstring)."""
@@ -93,24 +95,11 @@ class SPBExtension(CheckpointedBonds):
         mats = [sim.materials[g] for g in self.groups]
         self.material = mats[0]          # names the bonds' checkpoint folder
         specs = [m.failure for m in mats]
-        names = [sim.scene.materials[g].name for g in self.groups]
-        problems = []
-        if sim.scheme != MLS:
-            problems.append(f"materials[{self.groups[0]}].failure: SPB-MPM needs "
-                            f"simulation.transfer = 'mls' (the re-transfer recomputes C as the "
-                            f"velocity gradient), got {sim.scene.transfer!r}")
-        if sim.deformation != "F":
-            problems.append(f"materials[{self.groups[0]}].failure: SPB-MPM needs every "
-                            f"material to carry F (deformation mode 'F', got "
-                            f"{sim.deformation!r})")
-        for key in SHARED_KEYS:
-            values = {repr(s[key]) for s in specs}
-            if len(values) > 1:
-                problems.append(f"materials[{self.groups[0]}].failure.{key}: SPB materials "
-                                f"{', '.join(map(repr, names))} must agree, got "
-                                f"{', '.join(sorted(values))}")
+        # parse_scene reports these already; a scene built in code meets them here.
+        problems = failure_scene_problems(sim.materials, sim.scene.transfer,
+                                          sim.scene.integrator)
         if problems:
-            raise SceneError(problems)
+            raise SceneError([f"{sim.scene.path}: {key}: {what}" for key, what in problems])
         f0 = specs[0]
         self.coupling = f0["coupling"]
         self.exclusive = self.coupling == "exclusive"
@@ -125,6 +114,9 @@ class SPBExtension(CheckpointedBonds):
             else self.s_reach
         self.skin = self.spacing
         self.energy_code = np.array([ENERGIES.index(s["energy"]) for s in specs])
+        # eq. 6.10 divides tau by det F, or by the material's own volume ratio J where it
+        # carries no F (the impact models in mode "L").
+        self.volume = ["F" if m.deformation == "F" else "J" for m in mats]
         self.E = np.array([m.params["E"] for m in mats], dtype=np.float64)
         self.nu = np.array([m.params["nu"] for m in mats], dtype=np.float64)
         self.G_EE = np.array([s["grid_energy"] for s in specs], dtype=np.float64)
@@ -134,8 +126,7 @@ class SPBExtension(CheckpointedBonds):
         # material's bulk modulus (correspondence.py); one G per scene (a bond between two
         # materials must see the same G at both ends): the smallest.
         self.G = min(s["stabilization"] * pmb_micromodulus(
-            self.dim, bulk_modulus(self.dim, m.params["E"], m.params["nu"]), self.delta)
-            for s, m in zip(specs, mats))
+            self.dim, pd_moduli(self.dim, m)[0], self.delta) for s, m in zip(specs, mats))
         self.dt_pd = min(self._pd_time_step(m) for m in mats)
         self.pd_global = 0          # PD particles on all ranks
         self.need_x0 = True
@@ -160,9 +151,8 @@ class SPBExtension(CheckpointedBonds):
         """0.8 sqrt(2 rho / sum_q V c w / |X|) over a full lattice family (Silling & Askari;
         moduli.py), with c the micromodulus of the material's P-wave modulus plus the
         stabilization's."""
-        E, nu = material.params["E"], material.params["nu"]
-        c = equivalent_micromodulus(self.dim, bulk_modulus(self.dim, E, nu),
-                                    shear_modulus(E, nu), self.delta) + self.G
+        c = equivalent_micromodulus(self.dim, *pd_moduli(self.dim, material),
+                                    self.delta) + self.G
         h = self.delta / self.spacing
         r = int(math.ceil(h + 0.5))
         axis = np.arange(-r, r + 1, dtype=np.float64)
@@ -196,15 +186,16 @@ class SPBExtension(CheckpointedBonds):
             unset = np.isnan(x0[:, 0])
             x0[unset] = p["x"][start:stop][unset]
         ENERGY_HISTORY[self.dim](p["x"][start:stop], p["mass"][start:stop], tau,
-                                 p["F"][start:stop], p["EE"][start:stop], self.energy_code[k],
+                                 p[self.volume[k]][start:stop], p["EE"][start:stop],
+                                 self.energy_code[k],
                                  self.E[k], self.nu[k], sim._static_order, sim.dx,
                                  sim.domain_lo, sim.grid.origin, sim.grid["spb_energy"])
         if self.exclusive and self.pd_global:
             pd = p["model"][start:stop] == 1
             tau[pd] = 0.0
 
-    # -- after G2P: Alg. 3 --------------------------------------------------------------------
-    def after_g2p(self, sim, dt: float) -> None:
+    # -- after G2P, before the state update: Alg. 3 ---------------------------------------------
+    def before_state(self, sim, dt: float) -> None:
         self.need_x0 = False
         with sim.phase("spb_convert"):
             new_rows = self._convert(sim, dt)
@@ -387,6 +378,8 @@ class SPBExtension(CheckpointedBonds):
                 # The material's own state (snow: Fp, Jp), not the SPB fields.
                 fields = {name: p[name][rows] for name in material.fields
                           if name not in SPB_FIELDS}
+                if "L" in p:            # the step's velocity gradient (artificial viscosity)
+                    fields["L"] = p["L"][rows]
                 pd_stress(material, fields, np.ascontiguousarray(self.F[a:e]), tau[a:e])
         correspondence_force_state(self.F, self.Kinv, tau, self.active, n, self.A)
         # An inverted PD family (det F^PD <= 0: a particle left with a few bonds that no
@@ -454,12 +447,17 @@ class SPBExtension(CheckpointedBonds):
         held = pd_rows[near == 1]
         p["v"][held] -= dv[near == 1]
         p["x"][held] -= dt * dv[near == 1]
+        # Mode "F": F already holds (I + dt C^) F^n and is corrected; mode "L": the stored
+        # velocity gradient L = C^ takes the increment of C, the state update comes after.
+        mode_l = sim.deformation == "L"
+        target = p["L"] if mode_l else p["F"]
         for g in sim._on_grid:
             start, stop = sim.group_slices[g]
             if stop > start:
                 REGATHER[self.dim](p["x"][start:stop], p["v"][start:stop], p["C"][start:stop],
-                                   p["F"][start:stop], sim.dinv_factor, sim.dx, sim.domain_lo,
-                                   grid.origin, dt, sim._static_order, dvel, reaction)
+                                   target[start:stop], mode_l, sim.dinv_factor, sim.dx,
+                                   sim.domain_lo, grid.origin, dt, sim._static_order, dvel,
+                                   reaction)
         if len(held):
             # They took the boundaries' reaction above; now the rest of the correction.
             np.subtract(dvel, reaction, out=reaction)
@@ -467,11 +465,8 @@ class SPBExtension(CheckpointedBonds):
                              np.array(reaction.shape[:-1]), grid.origin, sim.domain_lo,
                              sim.dx, sim._static_order)
         self.held = len(held)
-        # Snow: the corrected trial F_E goes through the clamp again (idempotent elsewhere).
-        for g in self.groups:
-            material = sim.materials[g]
-            if type(material).return_map is not Material.return_map:
-                material.return_map(sim.material_fields(g), dt)
+        # Snow's clamp and the mode-L state updates run next (Simulation.update_states) on
+        # the corrected F or L.
 
     # -- checkpoints ----------------------------------------------------------------------------
     # Bonds checkpoint through pd/extension.CheckpointedBonds (beside the particle checkpoint,
@@ -563,10 +558,12 @@ def bond_damage(offsets, status, weight, n, damage, rows):
 
 
 @njit(cache=True)
-def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel, reaction):
+def regather_2d(x, v, C, F, add_to_L, dinv_factor, dx, domain_lo, origin, dt, order, dvel,
+                reaction):
     """The re-transfer's G2P for MLS in 2D (module docstring, 4.): particles with a
     corrected node in their stencil get C += D^-1 sum_i w dv_i (x_i - x^n)^T and F <-
-    (I + dt C_new)(I + dt C_old)^-1 F, x^n = x - dt v; the boundaries' reaction r_i to the
+    (I + dt C_new)(I + dt C_old)^-1 F, x^n = x - dt v (``add_to_L``: F is the stored
+    velocity gradient L of mode "L" and takes the same increment as C); the boundaries' reaction r_i to the
     correction reaches the velocity, v += sum_i w r_i, and the position, x += dt sum_i w r_i.
     In place."""
     order = len(order)
@@ -611,6 +608,16 @@ def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel,
         v[p, 1] += r1
         x[p, 0] += dt * r0
         x[p, 1] += dt * r1
+        if add_to_L:
+            C[p, 0, 0] += dinv * c00
+            C[p, 0, 1] += dinv * c01
+            C[p, 1, 0] += dinv * c10
+            C[p, 1, 1] += dinv * c11
+            F[p, 0, 0] += dinv * c00
+            F[p, 0, 1] += dinv * c01
+            F[p, 1, 0] += dinv * c10
+            F[p, 1, 1] += dinv * c11
+            continue
         # M = (I + dt C_old)^-1
         a00, a01 = 1.0 + dt * C[p, 0, 0], dt * C[p, 0, 1]
         a10, a11 = dt * C[p, 1, 0], 1.0 + dt * C[p, 1, 1]
@@ -635,7 +642,8 @@ def regather_2d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel,
 
 
 @njit(cache=True)
-def regather_3d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel, reaction):
+def regather_3d(x, v, C, F, add_to_L, dinv_factor, dx, domain_lo, origin, dt, order, dvel,
+                reaction):
     """3D `regather_2d` (small arrays allocated once per call, not per particle)."""
     order = len(order)
     inv_dx = 1.0 / dx
@@ -688,6 +696,12 @@ def regather_3d(x, v, C, F, dinv_factor, dx, domain_lo, origin, dt, order, dvel,
         x[p, 0] += dt * r0
         x[p, 1] += dt * r1
         x[p, 2] += dt * r2
+        if add_to_L:
+            for a in range(3):
+                for c in range(3):
+                    C[p, a, c] += dinv * dC[a, c]
+                    F[p, a, c] += dinv * dC[a, c]
+            continue
         for a in range(3):
             for c in range(3):
                 A[a, c] = (1.0 if a == c else 0.0) + dt * C[p, a, c]
