@@ -26,6 +26,7 @@ Step time = wall time of the timed steps (after ``--warmup`` steps) / steps, max
 from __future__ import annotations
 
 import argparse
+import re
 import time
 from pathlib import Path
 from tempfile import TemporaryDirectory
@@ -63,8 +64,11 @@ rebalance_every = 20
 
 def scene_text(dx: float, end_time: float) -> str:
     text = open("inputs/pd_plate_tear_2d.toml").read()
-    return text.replace("[walls]", BLOCK).replace("dx = 0.02", f"dx = {dx}").replace(
-        "end_time = 0.02", f"end_time = {end_time}").replace("every = 0.002", "every = 1.0")
+    # Whole lines, whatever the scene's values: its spacing, end time and frame interval.
+    text = text.replace("[walls]", BLOCK)
+    for key, value in (("dx", dx), ("end_time", end_time), ("every", 1.0)):
+        text = re.sub(rf"(?m)^{key} = .*$", f"{key} = {value}", text)
+    return text
 
 
 MESSAGE_PHASES = ("halo", "migrate")

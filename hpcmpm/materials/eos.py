@@ -62,7 +62,8 @@ MAX_REPORTED = 4
 
 EOS_SCHEMA = {
     "type": choice(("mie_gruneisen",), doc="equation of state"),
-    "c0": Param(0.0, math.inf, doc="bulk sound speed c0 (velocity units)"),
+    # Bounded so that rho0 c0^2 stays a float64 (a c0 of 1e300 overflowed in validation).
+    "c0": Param(0.0, 1e150, doc="bulk sound speed c0 (velocity units)"),
     "s": Param(1.0, math.inf, required=False, default=1.1,
                doc="Hugoniot slope S of U_s = c0 + S u_p (> 1; 003 §7.2.3: 1.1)"),
     "gamma0": Param(0.0, math.inf, required=False, default=1.6, low_inclusive=True,
@@ -199,7 +200,7 @@ class Volumetric:
             self.kind, self.c0, self.s, self.gamma0 = (MIE_GRUNEISEN, eos["c0"], eos["s"],
                                                        eos["gamma0"])
         self.rho0 = density
-        self.K = bulk_modulus if eos is None else density * self.c0 ** 2
+        self.K = bulk_modulus if eos is None else density * self.c0 * self.c0
         on = eos is not None
         self.q1 = (1.5 if on else 0.0) if q1 is None else q1
         self.q2 = (0.06 if on else 0.0) if q2 is None else q2

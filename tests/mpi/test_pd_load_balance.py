@@ -3,6 +3,7 @@ PD plate (PMB, off the grid, tearing) and an MPM block of the same particle coun
 by weight, not by count, at start-up and by the run's rebalancing, and the result is the
 1-rank run's (PD bitwise: the bonds' sums do not depend on the rank; MPM to round-off)."""
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,10 @@ velocity = [0.0, 5.0]
 rebalance_threshold = 1.1
 rebalance_every = 10
 
-[walls]""").replace("end_time = 0.02", f"end_time = {STEPS * DT}\ndt = {DT}")
+[walls]""")
+# The scene's own end time (a whole line, whatever it says) becomes STEPS fixed steps.
+TEXT = re.sub(r"(?m)^end_time = .*$", f"end_time = {STEPS * DT}\ndt = {DT}", TEXT)
+assert f"dt = {DT}" in TEXT
 
 
 def loads(sim) -> tuple[float, float]:
