@@ -161,19 +161,21 @@ def project_collider(velocity, mass, use_mass, lo, hi, origin, dx, domain_lo, sh
                     continue
                 x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
                 u2 = velocity[i, j, k, 2] if dim == 3 else 0.0
-                inside, r0, r1, r2 = project_relative(
-                    shape, size, centre, R, v_lin, omega, condition, friction, x0, x1, x2,
-                    velocity[i, j, k, 0], velocity[i, j, k, 1], u2)
-                if not inside:
-                    continue
                 if record:
                     phi, n0, n1, n2 = world_level_set(shape, size, centre, R, x0, x1, x2)
+                    if phi > 0.0:
+                        continue
                     w0 = v_lin[0] + omega[1] * x2 - omega[2] * x1
                     w1 = v_lin[1] + omega[2] * x0 - omega[0] * x2
                     w2 = v_lin[2] + omega[0] * x1 - omega[1] * x0
                     constrain(basis, count, i, j, k, velocity[i, j, k, 0] - w0,
                               velocity[i, j, k, 1] - w1, u2 - w2 if dim == 3 else 0.0,
                               n0, n1, n2, condition, dim)
+                    continue
+                inside, r0, r1, r2 = project_relative(
+                    shape, size, centre, R, v_lin, omega, condition, friction, x0, x1, x2,
+                    velocity[i, j, k, 0], velocity[i, j, k, 1], u2)
+                if not inside:
                     continue
                 velocity[i, j, k, 0] = r0
                 velocity[i, j, k, 1] = r1
