@@ -69,7 +69,7 @@ def polar2(f):
 
 
 @njit(cache=True)
-def _jacobi_angle(app, aqq, apq):
+def jacobi_angle(app, aqq, apq):
     """(c, s) of the rotation that zeroes apq of a symmetric 2x2 [[app, apq], [apq, aqq]],
     and t = s / c (Numerical Recipes §11.1, the smaller of the two angles)."""
     if apq == 0.0:
@@ -88,7 +88,7 @@ def svd2(f):
     """Signed SVD F = U diag(s0, s1) V^T of a 2x2 tuple: returns (U, s0, s1, V), U and V
     rotations (det +1); s1 < 0 iff det F < 0."""
     R, S = polar2(f)
-    c, s, t = _jacobi_angle(S[0], S[3], S[1])
+    c, s, t = jacobi_angle(S[0], S[3], S[1])
     s0 = S[0] - t * S[1]
     s1 = S[3] + t * S[1]
     V = (c, s, -s, c)
@@ -108,7 +108,7 @@ def _column_rotation(x0, x1, x2, y0, y1, y2):
     # Squared test (no square roots): this runs for every pair of every sweep.
     if gamma * gamma <= ORTHO_TOL2 * alpha * beta:
         return 1.0, 0.0
-    c, s, _ = _jacobi_angle(alpha, beta, gamma)
+    c, s, _ = jacobi_angle(alpha, beta, gamma)
     return c, s
 
 

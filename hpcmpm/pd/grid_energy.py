@@ -32,6 +32,7 @@ from numba import njit
 
 from ..kernels.deformation import volume_ratio
 from ..kernels.shape import stencil_base, weights
+from ..materials.decompositions import jacobi_angle
 
 ENERGIES = ("stress_squared", "tensile_energy")
 STRESS_SQUARED, TENSILE_ENERGY = 0, 1
@@ -54,19 +55,6 @@ def tensile_part_2d(s00, s01, s11):
     return c * (s00 - l2), c * s01, c * (s11 - l2)
 
 
-@njit(cache=True, inline="always")
-def _jacobi_rotate(app, aqq, apq):
-    """(c, s) of the rotation that zeroes apq (Golub & Van Loan Alg. 8.4.1, the smaller
-    angle)."""
-    tau = (aqq - app) / (2.0 * apq)
-    if tau >= 0.0:
-        t = 1.0 / (tau + math.sqrt(1.0 + tau * tau))
-    else:
-        t = -1.0 / (-tau + math.sqrt(1.0 + tau * tau))
-    c = 1.0 / math.sqrt(1.0 + t * t)
-    return c, t * c
-
-
 @njit(cache=True)
 def symmetric_eigen_3d(a00, a01, a02, a11, a12, a22):
     """Eigenvalues (l0, l1, l2) and eigenvectors (columns of the row-major 9-tuple V) of a
@@ -82,7 +70,7 @@ def symmetric_eigen_3d(a00, a01, a02, a11, a12, a22):
         if off <= 1e-34 * scale or off < 1e-300:
             break
         if a01 != 0.0:                                   # pair (0, 1)
-            c, s = _jacobi_rotate(a00, a11, a01)
+            c, s, _ = jacobi_angle(a00, a11, a01)
             n00 = c * c * a00 - 2.0 * s * c * a01 + s * s * a11
             n11 = s * s * a00 + 2.0 * s * c * a01 + c * c * a11
             n02 = c * a02 - s * a12
@@ -92,7 +80,7 @@ def symmetric_eigen_3d(a00, a01, a02, a11, a12, a22):
             v10, v11 = c * v10 - s * v11, s * v10 + c * v11
             v20, v21 = c * v20 - s * v21, s * v20 + c * v21
         if a02 != 0.0:                                   # pair (0, 2)
-            c, s = _jacobi_rotate(a00, a22, a02)
+            c, s, _ = jacobi_angle(a00, a22, a02)
             n00 = c * c * a00 - 2.0 * s * c * a02 + s * s * a22
             n22 = s * s * a00 + 2.0 * s * c * a02 + c * c * a22
             n01 = c * a01 - s * a12
@@ -102,7 +90,7 @@ def symmetric_eigen_3d(a00, a01, a02, a11, a12, a22):
             v10, v12 = c * v10 - s * v12, s * v10 + c * v12
             v20, v22 = c * v20 - s * v22, s * v20 + c * v22
         if a12 != 0.0:                                   # pair (1, 2)
-            c, s = _jacobi_rotate(a11, a22, a12)
+            c, s, _ = jacobi_angle(a11, a22, a12)
             n11 = c * c * a11 - 2.0 * s * c * a12 + s * s * a22
             n22 = s * s * a11 + 2.0 * s * c * a12 + c * c * a22
             n01 = c * a01 - s * a02
