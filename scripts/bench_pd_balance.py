@@ -57,17 +57,22 @@ velocity = [0.0, 5.0]
 
 [parallel]
 rebalance_threshold = 1.1
-rebalance_every = 20
+rebalance_every = {rebalance_every}
 
 [walls]"""
 
 
-def scene_text(dx: float, end_time: float) -> str:
+def scene_text(dx: float, end_time: float, rebalance_every: int = 20,
+               dt: float | None = None) -> str:
+    """The plate and the block (also the scene of tests/mpi/test_pd_load_balance.py); a fixed
+    ``dt`` when given, else the CFL step."""
     text = open("inputs/pd_plate_tear_2d.toml").read()
     # Whole lines, whatever the scene's values: its spacing, end time and frame interval.
-    text = text.replace("[walls]", BLOCK)
+    text = text.replace("[walls]", BLOCK.format(rebalance_every=rebalance_every))
     for key, value in (("dx", dx), ("end_time", end_time), ("every", 1.0)):
         text = re.sub(rf"(?m)^{key} = .*$", f"{key} = {value}", text)
+    if dt is not None:
+        text = text.replace(f"end_time = {end_time}", f"end_time = {end_time}\ndt = {dt}")
     return text
 
 

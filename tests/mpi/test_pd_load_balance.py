@@ -3,7 +3,7 @@ PD plate (PMB, off the grid, tearing) and an MPM block of the same particle coun
 by weight, not by count, at start-up and by the run's rebalancing, and the result is the
 1-rank run's (PD bitwise: the bonds' sums do not depend on the rank; MPM to round-off)."""
 
-import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,33 +15,14 @@ from hpcmpm.runner import RunOptions, Runner, initial_particles, make_domain, si
 from hpcmpm.scene import parse_scene
 from hpcmpm.simulation import Simulation
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+from bench_pd_balance import scene_text  # noqa: E402
+
 DT, STEPS = 1.2e-6, 40
 # The tearing plate of inputs/pd_plate_tear_2d.toml (1600 PD particles, x in [0.3, 0.7]) and
 # a neo-Hookean block of 1400 particles beside it (the bodies' extent is longest along x, so
 # the bisection cuts x); rebalancing checked every 10 steps.
-TEXT = open("inputs/pd_plate_tear_2d.toml").read().replace("[walls]", """
-[[materials]]
-name = "block"
-type = "neo_hookean"
-density = 2500.0
-E = 7.2e10
-nu = 0.25
-
-[[bodies]]
-name = "block"
-material = "block"
-shape = "box"
-lower = [0.71, 0.25]
-upper = [0.99, 0.75]
-velocity = [0.0, 5.0]
-
-[parallel]
-rebalance_threshold = 1.1
-rebalance_every = 10
-
-[walls]""")
-# The scene's own end time (a whole line, whatever it says) becomes STEPS fixed steps.
-TEXT = re.sub(r"(?m)^end_time = .*$", f"end_time = {STEPS * DT}\ndt = {DT}", TEXT)
+TEXT = scene_text(0.02, STEPS * DT, rebalance_every=10, dt=DT)   # scripts/bench_pd_balance.py
 assert f"dt = {DT}" in TEXT
 
 
