@@ -5,9 +5,6 @@ damage, positions and velocities within 1e-10; the smallest relative distance of
 G_EE is reported (round-off between rank counts must stay below it); a restart on 2 ranks
 from the half-way checkpoint is bitwise the uninterrupted run."""
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,21 +12,14 @@ import numpy as np
 from hpcmpm.io.frames import read_frame
 from hpcmpm.runner import simulate
 from hpcmpm.scene import load_scene
+from test_restart import hpcmpm
 
-BIN = Path(sys.executable).parent
 SCENE = "inputs/watermelon_3d.toml"
 DT, STEPS = 2e-6, 100
 # G_EE raised for the coarse grid (l0 = delta doubles with dx): about a fifth converts.
 SETS = ["simulation.dx=0.02", f"simulation.dt={DT}", f"simulation.end_time={DT * STEPS}",
         f"output.every={DT * STEPS}", "materials.flesh.failure.grid_energy=6e8",
         "materials.rind.failure.grid_energy=2.4e9"]
-
-
-def hpcmpm(ranks: int, *args) -> None:
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    env = dict(os.environ, NUMBA_NUM_THREADS="1")
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
-    assert proc.returncode == 0, proc.stderr[-3000:]
 
 
 def final_frame(out: Path) -> dict:

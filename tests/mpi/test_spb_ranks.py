@@ -5,9 +5,6 @@ distance of any G_i to G_EE and of any bond energy to its threshold is reported 
 between rank counts must stay below it). A fixed dt makes every rank count take the same
 steps."""
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +12,8 @@ import numpy as np
 from hpcmpm.io.frames import read_frame
 from hpcmpm.runner import simulate
 from hpcmpm.scene import load_scene
+from test_restart import hpcmpm as launch
 
-BIN = Path(sys.executable).parent
 SCENE = "inputs/spb_stretched_bar_2d.toml"
 DT, STEPS = 4e-5, 200
 SETS = ["simulation.dx=0.014", f"simulation.dt={DT}", f"simulation.end_time={DT * STEPS}",
@@ -26,10 +23,7 @@ SETS = ["simulation.dx=0.014", f"simulation.dt={DT}", f"simulation.end_time={DT 
 
 
 def hpcmpm(ranks: int, *args) -> None:
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    env = dict(os.environ, NUMBA_NUM_THREADS="1")
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=500, env=env)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = launch(ranks, *args, timeout=500)   # test_restart.py: process-group kill on timeout
     assert "exceeds the CFL bound" not in proc.stderr
 
 
