@@ -5,7 +5,6 @@ through the grid): within 1e-10, the grid's summation order being the only diffe
 the same damage. A fixed dt makes every rank count take identical steps."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 
 from hpcmpm.io.frames import read_frame
+from launch import run_in_group
 
 BIN = Path(sys.executable).parent
 # Fixed steps below each scene's stable step (checked: no warning in stderr), bitwise or not,
@@ -27,7 +27,7 @@ def run(scene: str, ranks: int, out: Path, dt: float, steps: int) -> dict:
            "--set", f"simulation.dt={dt}", "--set", f"simulation.end_time={end}",
            "--set", f"output.every={end}"]
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=400, env=env)
+    proc = run_in_group(cmd, timeout=400, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "exceeds the CFL bound" not in proc.stderr
     data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])

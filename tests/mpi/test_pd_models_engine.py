@@ -7,7 +7,6 @@ bond plasticity, crack planes gathered over ranks, two-time integration, on the 
 per-bond stored forces checkpoint with the bonds) bitwise equal to the uninterrupted run."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import pytest
 
 from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
+from launch import run_in_group
 
 BIN = Path(sys.executable).parent
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
@@ -32,7 +32,7 @@ SCENES = {
 
 def hpcmpm(ranks: int, *args):
     cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args, "--quiet"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=ENV)
+    proc = run_in_group(cmd, timeout=600, env=ENV)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "exceeds the CFL bound" not in proc.stderr
     return proc

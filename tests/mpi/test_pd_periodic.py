@@ -3,13 +3,13 @@ constant velocity through several wraps with no internal force (its bonds wrap w
 1, 2 and 4 ranks agree bitwise."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from hpcmpm.io.frames import read_frame
+from launch import run_in_group
 
 BIN = Path(sys.executable).parent
 SCENE = """
@@ -56,8 +56,8 @@ def test_pd_strip_across_a_periodic_axis(tmp_path):
         out = tmp_path / f"n{ranks}"
         cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), "run", str(scene),
                "--out", str(out), "--quiet", "--force"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300,
-                              env=dict(os.environ, NUMBA_NUM_THREADS="1"))
+        proc = run_in_group(cmd, timeout=300,
+                            env=dict(os.environ, NUMBA_NUM_THREADS="1"))
         assert proc.returncode == 0, proc.stderr[-3000:]
         frames[ranks], attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
         assert attrs["step"] == 200

@@ -4,7 +4,6 @@ uninterrupted run (integration = "pd" does not depend on the decomposition), bro
 included (damage, and positions that a lost bond would change)."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import pytest
 
 from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
+from launch import run_in_group
 
 BIN = Path(sys.executable).parent
 DT = 1.2e-6
@@ -22,7 +22,7 @@ FIXED = ["--set", f"simulation.dt={DT}", "--set", f"output.every={50 * DT}"]
 
 def hpcmpm(ranks: int, *args):
     cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=ENV)
+    proc = run_in_group(cmd, timeout=300, env=ENV)
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 

@@ -5,7 +5,6 @@ reduced sizes of sponge_twist_ob_3d (prescribed sets, Oldroyd-B, 3D) and the Bin
 scripts/study_semi_implicit_ranks.py. A restart on the same rank count is bitwise."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 
 from hpcmpm.io.frames import read_frame
+from launch import run_in_group
 
 BIN = Path(sys.executable).parent
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
@@ -29,7 +29,7 @@ FIELDS = ("x", "v", "b", "J")
 
 def hpcmpm(ranks, *args):
     cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=400, env=ENV)
+    proc = run_in_group(cmd, timeout=400, env=ENV)
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 
