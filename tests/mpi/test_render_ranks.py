@@ -3,7 +3,6 @@ one rank: the PNGs are pixel for pixel equal (one colour scale reduced over the 
 rank 0's movie holds every frame."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import numpy as np
 
 from hpcmpm.cli import main
 from hpcmpm.viz.movie import movie_frame_count
+from launch import run_in_group
 
 BIN = Path(sys.executable).parent
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
@@ -30,9 +30,8 @@ def test_two_ranks_render_what_one_rank_renders(tmp_path):
                  "--end-time", "0.12", "--set", "simulation.dx=0.1"]) == 0
     args = ["--size", "200x150", "--movie", "gif", "--quiet"]
     assert main(["render", str(run), "--out", str(tmp_path / "one"), *args]) == 0
-    proc = subprocess.run([str(BIN / "mpiexec"), "-n", "2", str(BIN / "hpcmpm"), "render",
-                           str(run), "--out", str(tmp_path / "two"), *args],
-                          capture_output=True, text=True, timeout=240, env=ENV)
+    proc = run_in_group([str(BIN / "mpiexec"), "-n", "2", str(BIN / "hpcmpm"), "render",
+                         str(run), "--out", str(tmp_path / "two"), *args], timeout=240, env=ENV)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "2 rank(s)" in proc.stdout and "movie: " in proc.stdout
     one = sorted((tmp_path / "one").glob("render_*.png"))
