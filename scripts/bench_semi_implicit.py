@@ -14,8 +14,10 @@ numba cache makes it short the second time), one rank. ``speedup``: the scene to
 and to "semi_implicit" (advection bound); wall time of the time loop alone, the observable
 (OBSERVABLES below) of both and their relative difference. ``cg``: mean and max CG iterations
 per step of the semi-implicit run with preconditioner "jacobi" and "none". ``hessian``: the
-mean wall time of `SemiImplicitIntegrator._hessian` (fill ghosts, contraction, material
-Hessian, scatter, sum to owners, mass term, mask) over ``--repeats`` calls against the mean
+mean wall time of `SemiImplicitIntegrator._hessian` (fill ghosts, the fused contraction /
+tangent / scatter loop, sum to owners, mass term, mask) over ``--repeats`` calls, and of the
+tangents it uses (`_tangent`: d^2 material Hessian products, once per linearization), against
+the mean
 p2g + g2p time of an explicit step of the same scene and state. Writes
 bench_results/semi_implicit.json. Timings on a shared, loaded host are noise: run on a quiet
 machine before quoting them.
@@ -161,14 +163,23 @@ def hessian(results, scenes, repeats, smoke):
         integ._flat["cg_u"][:] = rng.standard_normal(integ._flat["cg_u"].shape)
         integ._project("cg_u")
         integ._hessian(sim, dt, "cg_u", "cg_w")  # compiled
+        # The tangents (d^2 material products, once per linearization), then the product a
+        # CG iteration applies with them.
+        start = time.perf_counter()
+        for _ in range(repeats):
+            integ._tangent_ready = False
+            integ._tangent(sim, dt)
+        tangent = (time.perf_counter() - start) / repeats
         start = time.perf_counter()
         for _ in range(repeats):
             integ._hessian(sim, dt, "cg_u", "cg_w")
         product = (time.perf_counter() - start) / repeats
-        row = {"hessian_product_s": product, "explicit_transfers_s": transfers,
-               "ratio": product / transfers, "particles": int(sim.particles.n)}
-        print(f"hessian {name}: H u {1e3 * product:.3f} ms, explicit P2G + G2P "
-              f"{1e3 * transfers:.3f} ms, ratio {product / transfers:.2f}", flush=True)
+        row = {"hessian_product_s": product, "tangent_s": tangent,
+               "explicit_transfers_s": transfers, "ratio": product / transfers,
+               "tangent_ratio": tangent / transfers, "particles": int(sim.particles.n)}
+        print(f"hessian {name}: H u {1e3 * product:.3f} ms, tangents {1e3 * tangent:.3f} ms "
+              f"(once per linearization), explicit P2G + G2P {1e3 * transfers:.3f} ms, ratio "
+              f"{product / transfers:.2f}", flush=True)
         results.setdefault("hessian", {})[name] = row
 
 

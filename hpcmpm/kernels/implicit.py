@@ -4,12 +4,15 @@ The unknown is the grid velocity v_hat; a particle sees it through its velocity 
 
     L_p(v) = sum_i v_i (grad w_ip)^T                                     (000 §5.5)
 
-with the weights at x^n. Every grid-level quantity of the solve is one of three particle loops:
+with the weights at x^n. Every grid-level quantity of the solve is one of four particle loops:
 
 - `CONTRACT`: a grid vector u to L_p(u) (the same sum G2P forms for the step's L);
 - `SCATTER_TENSOR`: per-particle tensors G_p (n, d, d) to ``out_i += scale sum_p G_p grad w_ip``
   (with G_p = de_p/dL_p and scale -1 this is the grid force -dPhi/dv_hat; with dG_p =
   D^2 e_p[dL_p] and scale +1 the material part of the Hessian-vector product);
+- `HESSIAN_PRODUCT`: the material part of H u in one particle loop, from each particle's
+  tangent T_p = D^2 e_p (d^2 x d^2, built once per linearization from d^2 material Hessian
+  products): `CONTRACT`, T_p and `SCATTER_TENSOR` fused;
 - `SCATTER_DIAGONAL`: the diagonal of the material Hessian,
   ``out_ia += sum_p sum_bc K_p[a, b, c] g_b g_c`` with K_p[a, b, c] = d^2 e_p/dL_ab dL_ac and
   g = grad w_ip (the Jacobi preconditioner).
@@ -254,9 +257,132 @@ def scatter_diagonal_3d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
                             + (K[p, a, 1, 2] + K[p, a, 2, 1]) * g1 * g2)
 
 
+@njit(cache=True)
+def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, out):
+    """out_i += sum_p (T_p : dL_p) grad w_ip with dL_p = sum_j u_j grad w_jp^T in 2D: the
+    material part of a Hessian-vector product in one pass, from the tangent
+    T_p[ab, ce] = d^2 e_p / dL_ab dL_ce (n, 4, 4) that `solvers.semi_implicit` builds once
+    per linearization. `contract_2d`, the tangent and `scatter_tensor_2d` fused."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1 = domain_lo[0], domain_lo[1]
+    o0, o1 = origin[0], origin[1]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
+        l0, l1 = b0 - o0, b1 - o1
+        a0 = a1 = a2 = a3 = 0.0
+        for i in range(s):
+            for j in range(s):
+                if mls:
+                    wd = w0[i] * w1[j] * dinv
+                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
+                else:
+                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                u0, u1 = u[l0 + i, l1 + j, 0], u[l0 + i, l1 + j, 1]
+                a0 += u0 * g0
+                a1 += u0 * g1
+                a2 += u1 * g0
+                a3 += u1 * g1
+        t0 = T[p, 0, 0] * a0 + T[p, 0, 1] * a1 + T[p, 0, 2] * a2 + T[p, 0, 3] * a3
+        t1 = T[p, 1, 0] * a0 + T[p, 1, 1] * a1 + T[p, 1, 2] * a2 + T[p, 1, 3] * a3
+        t2 = T[p, 2, 0] * a0 + T[p, 2, 1] * a1 + T[p, 2, 2] * a2 + T[p, 2, 3] * a3
+        t3 = T[p, 3, 0] * a0 + T[p, 3, 1] * a1 + T[p, 3, 2] * a2 + T[p, 3, 3] * a3
+        for i in range(s):
+            for j in range(s):
+                if mls:
+                    wd = w0[i] * w1[j] * dinv
+                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
+                else:
+                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                out[l0 + i, l1 + j, 0] += t0 * g0 + t1 * g1
+                out[l0 + i, l1 + j, 1] += t2 * g0 + t3 * g1
+
+
+@njit(cache=True)
+def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, out):
+    """3D version of `hessian_product_2d`; T (n, 9, 9)."""
+    mls, order = len(mls) > 0, len(order)
+    inv_dx = 1.0 / dx
+    dinv = dinv_factor * inv_dx * inv_dx
+    s = order + 1
+    lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    for p in range(x.shape[0]):
+        xi0 = (x[p, 0] - lo0) * inv_dx
+        xi1 = (x[p, 1] - lo1) * inv_dx
+        xi2 = (x[p, 2] - lo2) * inv_dx
+        b0 = stencil_base(xi0, order)
+        b1 = stencil_base(xi1, order)
+        b2 = stencil_base(xi2, order)
+        w0, dw0 = weights(xi0, b0, order, inv_dx)
+        w1, dw1 = weights(xi1, b1, order, inv_dx)
+        w2, dw2 = weights(xi2, b2, order, inv_dx)
+        e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
+        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = 0.0
+        for i in range(s):
+            for j in range(s):
+                wij = w0[i] * w1[j]
+                for k in range(s):
+                    if mls:
+                        wd = wij * w2[k] * dinv
+                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
+                    else:
+                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    n0, n1, n2 = l0 + i, l1 + j, l2 + k
+                    u0, u1, u2 = u[n0, n1, n2, 0], u[n0, n1, n2, 1], u[n0, n1, n2, 2]
+                    a0 += u0 * g0
+                    a1 += u0 * g1
+                    a2 += u0 * g2
+                    a3 += u1 * g0
+                    a4 += u1 * g1
+                    a5 += u1 * g2
+                    a6 += u2 * g0
+                    a7 += u2 * g1
+                    a8 += u2 * g2
+        t0 = _row9(T, p, 0, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t1 = _row9(T, p, 1, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t2 = _row9(T, p, 2, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t3 = _row9(T, p, 3, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t4 = _row9(T, p, 4, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t5 = _row9(T, p, 5, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t6 = _row9(T, p, 6, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t7 = _row9(T, p, 7, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t8 = _row9(T, p, 8, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        for i in range(s):
+            for j in range(s):
+                wij = w0[i] * w1[j]
+                for k in range(s):
+                    if mls:
+                        wd = wij * w2[k] * dinv
+                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
+                    else:
+                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    n0, n1, n2 = l0 + i, l1 + j, l2 + k
+                    out[n0, n1, n2, 0] += t0 * g0 + t1 * g1 + t2 * g2
+                    out[n0, n1, n2, 1] += t3 * g0 + t4 * g1 + t5 * g2
+                    out[n0, n1, n2, 2] += t6 * g0 + t7 * g1 + t8 * g2
+
+
+@njit(cache=True, inline="always")
+def _row9(T, p, r, a0, a1, a2, a3, a4, a5, a6, a7, a8):
+    return (T[p, r, 0] * a0 + T[p, r, 1] * a1 + T[p, r, 2] * a2 + T[p, r, 3] * a3
+            + T[p, r, 4] * a4 + T[p, r, 5] * a5 + T[p, r, 6] * a6 + T[p, r, 7] * a7
+            + T[p, r, 8] * a8)
+
+
 CONTRACT = {2: contract_2d, 3: contract_3d}
 SCATTER_TENSOR = {2: scatter_tensor_2d, 3: scatter_tensor_3d}
 SCATTER_DIAGONAL = {2: scatter_diagonal_2d, 3: scatter_diagonal_3d}
+HESSIAN_PRODUCT = {2: hessian_product_2d, 3: hessian_product_3d}
 
 
 # -- flat grid loops: u (N, d) vectors, free (N,) 0/1 ------------------------------------------

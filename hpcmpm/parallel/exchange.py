@@ -90,15 +90,6 @@ def pack_regions(fields: list[np.ndarray], boxes: list[tuple], buf: np.ndarray) 
             start += part.size
 
 
-def regions_size(fields: list[np.ndarray], boxes: list[tuple]) -> int:
-    total = 0
-    for slices in boxes:
-        n_nodes = int(np.prod([s.stop - s.start for s in slices]))
-        total += sum(n_nodes * int(np.prod(f.shape[len(slices):], dtype=np.int64))
-                     for f in fields)
-    return total
-
-
 def unpack_regions(fields: list[np.ndarray], boxes: list[tuple], buf: np.ndarray,
                    add: bool) -> None:
     """Add (``add``) or copy ``buf`` into the regions, in the order `pack_regions` wrote."""
