@@ -548,7 +548,8 @@ def bond_damage(offsets, status, weight, n, damage, active, rows):
     """damage[rows[p]] = 1 - sum_intact w / sum_all w over the bonds made so far (0 without
     bonds: a PD particle whose neighbours are not PD yet is not damaged; 003 eq. 4.8 with
     the partial volumes as weights). Bonds that started broken count. In the same pass
-    active[rows[p]] = the intact half-bonds (the load-balance weight, `SPBExtension.add_load`)."""
+    active[rows[p]] = the intact half-bonds (the load-balance weight,
+    `SPBExtension.add_load`)."""
     for p in range(n):
         total = 0.0
         intact = 0.0
