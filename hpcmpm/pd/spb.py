@@ -28,7 +28,8 @@ What the engine calls, and when:
      tau = det(F^PD) sigma, `ImpactMaterial.pd_stress`), T = w P K^-1 X (eq. 6.8 = 4.7 with the P^T correction), force eq. 6.6
      times V_p with Silling's zero-energy-mode control, v = v^ + dt f/m and x = x^n + dt v
      (line 21 prints x^ + dt v, which advances twice); then failure (energy_failure.py: eq.
-     6.11 as printed or the accumulated work; or eq. 4.8) and damage.
+     6.11 as printed or the accumulated work; or eq. 4.8), damage and the active half-bond
+     counts (the load-balance weights, `add_load`).
   4. "transfer again" (6.3.1): the momentum correction m (v - v^) of the PD particles is
      scattered at x^n, summed to owners, turned into a grid velocity correction (boundary
      conditions applied again) and filled into ghosts; every particle touching a corrected
