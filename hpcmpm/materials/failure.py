@@ -32,6 +32,7 @@ from numba import njit
 
 from ..state import SCALAR, VECTOR, FieldSpec
 from .base import Param, choice, table
+from .peridynamic import ACTIVE_BONDS
 
 COUPLINGS = ("exclusive", "additive")
 DEFAULT_COUPLING = "exclusive"   # the patch test (tests/verification/test_spb_coupled.py)
@@ -62,12 +63,16 @@ SPB_SCHEMA = {
 SPB_FAILURE = table(SPB_SCHEMA, doc="SPB-MPM failure (003 ch. 6)")
 
 # Particle fields of an SPB material: reference positions (NaN until the first step sets
-# them), the energy history EE_p, the model (0 MPM, 1 PD) and the damage phi.
+# them), the energy history EE_p, the model (0 MPM, 1 PD), the damage phi and the active
+# half-bonds of a PD particle (its load-balance weight; written with the damage, so it
+# travels with the particle; -1, the PD materials' spec, on MPM particles, which
+# `SPBExtension.add_load` does not read).
 SPB_FIELDS = {
     "x0": FieldSpec(VECTOR, "f8", math.nan),
     "EE": FieldSpec(SCALAR, "f8", 0.0),
     "model": FieldSpec(SCALAR, "i1", 0),
     "damage": FieldSpec(SCALAR, "f8", 0.0),
+    "active_bonds": ACTIVE_BONDS,
 }
 
 

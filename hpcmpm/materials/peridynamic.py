@@ -31,6 +31,11 @@ from ..state import SCALAR, VECTOR, FieldSpec
 from .base import POISSON, YOUNG, ElasticMaterial, Material, Param, choice, resolve_params
 from .pd_models import EXTRA_PARAMETERS, check_chapter5
 
+# Active (intact) half-bonds of a particle, its load-balance weight (pd/load.py); -1 until
+# its bonds are made. One spec for PD materials and SPB materials (failure.py): a scene with
+# both shares the field.
+ACTIVE_BONDS = FieldSpec(SCALAR, "i4", -1)
+
 
 def _point(x) -> str:
     return "[" + ", ".join(f"{v:g}" for v in x) + "]"
@@ -96,7 +101,7 @@ class Peridynamic(Material):
     # half-bonds (-1 until the bonds are made) that weigh the particle for load balance.
     fields = {"x0": FieldSpec(VECTOR, "f8", math.nan), "pd_m": FieldSpec(SCALAR),
               "pd_wvol0": FieldSpec(SCALAR), "damage": FieldSpec(SCALAR),
-              "active_bonds": FieldSpec(SCALAR, "i4", -1)}
+              "active_bonds": ACTIVE_BONDS}
     deformation = "F"
 
     def __init__(self, spec, dim: int):

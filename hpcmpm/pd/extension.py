@@ -37,7 +37,7 @@ from .contact import ParticleColliders, ParticleWalls
 from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
-from .load import bond_cost
+from .load import add_bond_load, bond_cost
 
 log = logging.getLogger(__name__)
 
@@ -240,9 +240,8 @@ class PDExtension:
         exist, an interior family's count. Rows found by group (any order: between steps)."""
         p = sim.particles
         rows = np.flatnonzero(p["group"] == self.group)
-        active = p["active_bonds"][rows].astype(np.float64)
-        active[active < 0] = self.material.half_bonds_per_particle()
-        weights[rows] += np.rint(sim.particle_weight * self.bond_cost * active).astype(np.int64)
+        add_bond_load(weights, rows, p["active_bonds"][rows], sim.particle_weight,
+                      self.bond_cost, self.material.half_bonds_per_particle())
 
 
 class _HalfBondRows:

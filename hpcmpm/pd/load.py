@@ -22,6 +22,8 @@ model).
 
 from __future__ import annotations
 
+import numpy as np
+
 BOND_COST = {(2, "pmb"): 0.061, (2, "lps"): 0.158, (2, "correspondence"): 0.338,
              (3, "pmb"): 0.0122, (3, "lps"): 0.0327, (3, "correspondence"): 0.117}
 
@@ -29,3 +31,15 @@ BOND_COST = {(2, "pmb"): 0.061, (2, "lps"): 0.158, (2, "correspondence"): 0.338,
 def bond_cost(dim: int, model: str) -> float:
     """c_b: the cost of one active half-bond per step, in MPM particle-steps."""
     return BOND_COST.get((dim, model), BOND_COST[(dim, "lps")])
+
+
+def add_bond_load(weights: np.ndarray, rows: np.ndarray, active_bonds: np.ndarray,
+                  unit: int, c_b: float, family: int) -> None:
+    """weights[rows] += round(unit c_b b), b = ``active_bonds`` (the particles' field
+    "active_bonds", the intact half-bonds counted from their bond rows; a particle field, so
+    the weight travels with the particle and is the same on every rank count); -1 (bonds
+    not made yet, or a checkpoint written before the field existed) weighs an interior
+    family of ``family`` half-bonds."""
+    active = active_bonds.astype(np.float64)
+    active[active < 0] = family
+    weights[rows] += np.rint(unit * c_b * active).astype(np.int64)

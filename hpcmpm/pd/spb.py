@@ -28,7 +28,8 @@ What the engine calls, and when:
      tau = det(F^PD) sigma, `ImpactMaterial.pd_stress`), T = w P K^-1 X (eq. 6.8 = 4.7 with the P^T correction), force eq. 6.6
      times V_p with Silling's zero-energy-mode control, v = v^ + dt f/m and x = x^n + dt v
      (line 21 prints x^ + dt v, which advances twice); then failure (energy_failure.py: eq.
-     6.11 as printed or the accumulated work; or eq. 4.8) and damage.
+     6.11 as printed or the accumulated work; or eq. 4.8), damage and the active half-bond
+     counts (the load-balance weights, `add_load`).
   4. "transfer again" (6.3.1): the momentum correction m (v - v^) of the PD particles is
      scattered at x^n, summed to owners, turned into a grid velocity correction (boundary
      conditions applied again) and filled into ghosts; every particle touching a corrected
@@ -76,7 +77,7 @@ from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
 from .families import find_families, half_bonds_per_particle
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
-from .load import bond_cost
+from .load import add_bond_load, bond_cost
 from .moduli import equivalent_micromodulus, pmb_micromodulus
 
 log = logging.getLogger(__name__)
@@ -407,7 +408,7 @@ class SPBExtension(CheckpointedBonds):
                 self.pts_wc, self.delta, self.spacing, True, self.failure == "work", *state)
             self.broken += broken
             self.bond_margin = min(self.bond_margin, margin)
-        bond_damage(b.offsets, b.status, b.weight, n, p["damage"], pd_rows)
+        bond_damage(b.offsets, b.status, b.weight, n, p["damage"], p["active_bonds"], pd_rows)
         return dv
 
     # -- transfer again -----------------------------------------------------------------------
@@ -470,7 +471,8 @@ class SPBExtension(CheckpointedBonds):
 
     # -- checkpoints ----------------------------------------------------------------------------
     # Bonds checkpoint through pd/extension.CheckpointedBonds (beside the particle checkpoint,
-    # in pd_bonds_<first SPB material>/); EE_p, x0, model and damage are particle fields.
+    # in pd_bonds_<first SPB material>/); EE_p, x0, model, damage and active_bonds are particle
+    # fields.
     def checkpoint_ids(self) -> np.ndarray:
         return self.sim.particles["id"][self.sim.particles["model"] == 1].copy()
 
@@ -487,22 +489,22 @@ class SPBExtension(CheckpointedBonds):
     # -- load balance -------------------------------------------------------------------------
     def add_load(self, sim, weights: np.ndarray) -> None:
         """`Simulation.load_weights`: a PD particle costs c_b (the correspondence model's,
-        pd/load.py) times its active half-bonds more, estimated as (1 - damage) times an
-        interior family's count: the damage is a particle field, so the weight travels with
-        the particle and is the same on every rank count, where the bond rows are not yet
-        aligned with the particles when the runner rebalances (after migration). Before any
+        pd/load.py) times its active half-bonds more, the particle field "active_bonds" that
+        `bond_damage` counts from the bond rows after each PD step (conversions and their
+        bonds come before it in the step, so the count is current whenever the runner
+        rebalances): it travels with the particle through migration, so the weight is the
+        same on every rank count although the bond rows are realigned only at the next step.
+        A PD particle whose neighbours are not PD yet weighs the bonds it has. Before any
         conversion every weight stays 1 unit: the decomposition of the MPM scene (the units
-        are 64 = 2^6, so the bisection's quantiles and the imbalance are the count's, bitwise).
-        Over-estimates a PD particle whose neighbours are not PD yet (its bonds exist only to
-        PD partners)."""
+        are 64 = 2^6, so the bisection's quantiles and the imbalance are the count's,
+        bitwise)."""
         p = sim.particles
         rows = np.flatnonzero(p["model"] == 1)
         if not len(rows):
             return
-        family = half_bonds_per_particle(self.dim, self.delta / self.spacing, True)
-        active = (1.0 - p["damage"][rows]) * family
-        cost = sim.particle_weight * bond_cost(self.dim, "correspondence")
-        weights[rows] += np.rint(cost * active).astype(np.int64)
+        add_bond_load(weights, rows, p["active_bonds"][rows], sim.particle_weight,
+                      bond_cost(self.dim, "correspondence"),
+                      half_bonds_per_particle(self.dim, self.delta / self.spacing, True))
 
     # -- diagnostics --------------------------------------------------------------------------
     def margins(self, domain) -> dict:
@@ -543,18 +545,23 @@ def _send_records(domain, records) -> dict:
 
 
 @njit(cache=True, error_model="numpy")
-def bond_damage(offsets, status, weight, n, damage, rows):
+def bond_damage(offsets, status, weight, n, damage, active, rows):
     """damage[rows[p]] = 1 - sum_intact w / sum_all w over the bonds made so far (0 without
-    bonds: a PD particle whose neighbours are not PD yet is not damaged). Bonds that started
-    broken count."""
+    bonds: a PD particle whose neighbours are not PD yet is not damaged; 003 eq. 4.8 with
+    the partial volumes as weights). Bonds that started broken count. In the same pass
+    active[rows[p]] = the intact half-bonds (the load-balance weight,
+    `SPBExtension.add_load`)."""
     for p in range(n):
         total = 0.0
         intact = 0.0
+        count = 0
         for b in range(offsets[p], offsets[p + 1]):
             total += weight[b]
             if status[b] != 0:
                 intact += weight[b]
+                count += 1
         damage[rows[p]] = 1.0 - intact / total if total > 0.0 else 0.0
+        active[rows[p]] = count
 
 
 @njit(cache=True)

@@ -1,7 +1,8 @@
 """SPB-MPM on 1 (in process), 2 and 4 (oversubscribed) ranks: the stretched bar (coarse, pulled fast so it
 converts and tears within a few hundred steps) gives the same PD set and the same broken
-bonds (damage bitwise), positions and velocities within 1e-10, and the smallest relative
-distance of any G_i to G_EE and of any bond energy to its threshold is reported (round-off
+bonds (damage bitwise), the same load-balance weights by id (the active half-bonds counted
+from each rank's bond rows, bitwise), positions and velocities within 1e-10, and the
+smallest relative distance of any G_i to G_EE and of any bond energy to its threshold is reported (round-off
 between rank counts must stay below it). A fixed dt makes every rank count take the same
 steps."""
 
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from hpcmpm.io.frames import read_frame
+from hpcmpm.pd.load import bond_cost
 from hpcmpm.runner import simulate
 from hpcmpm.scene import load_scene
 from test_restart import hpcmpm as launch
@@ -19,7 +21,7 @@ DT, STEPS = 4e-5, 200
 SETS = ["simulation.dx=0.014", f"simulation.dt={DT}", f"simulation.end_time={DT * STEPS}",
         f"output.every={DT * STEPS}", "materials.0.failure.grid_energy=3376.8",
         "materials.0.failure.bond_energy=0.5", "prescribed.0.velocity=[0.0, -3.0]",
-        "prescribed.1.velocity=[0.0, 3.0]"]
+        "prescribed.1.velocity=[0.0, 3.0]", 'output.fields=["active_bonds"]']
 
 
 def hpcmpm(ranks: int, *args) -> None:
@@ -48,12 +50,21 @@ def test_spb_bar_matches_across_rank_counts(tmp_path):
     p = sim.particles
     order = np.argsort(p["id"])
     ref = {k: p[f][order] for k, f in (("id", "id"), ("x", "x"), ("v", "v"),
-                                       ("model", "model"), ("damage", "damage"))}
+                                       ("model", "model"), ("damage", "damage"),
+                                       ("active_bonds", "active_bonds"))}
+    weights = sim.load_weights()[order]
     print(f"1 rank: PD {int((ref['model'] == 1).sum())} of {len(order)}, damaged "
           f"{int((ref['damage'] > 0).sum())}, smallest margins: G_i to G_EE "
           f"{margins['flag']:.2e}, bond energy to beta W_c {margins['bond']:.2e}")
     assert 0.05 * len(order) < (ref["model"] == 1).sum() < len(order)   # partly converted
     assert ref["damage"].max() > 0.3                                    # and torn
+    # The weights are each particle's own: 1 unit, plus c_b x its intact half-bonds once PD
+    # (surface and torn particles fewer than an interior family: the counts differ).
+    pd = ref["model"] == 1
+    unit = sim.particle_weight
+    assert np.all(weights[~pd] == unit) and len(np.unique(ref["active_bonds"][pd])) > 3
+    assert np.array_equal(weights[pd], unit + np.rint(
+        unit * bond_cost(2, "correspondence") * ref["active_bonds"][pd]).astype(np.int64))
     frames = {}
     for ranks in (2, 4):                  # 1 rank: the in-process run above
         extra = ["--checkpoint-every", str(STEPS // 2)] if ranks == 2 else []
@@ -61,6 +72,8 @@ def test_spb_bar_matches_across_rank_counts(tmp_path):
         assert np.array_equal(got["id"], ref["id"])
         assert np.array_equal(got["model"], ref["model"]), f"{ranks} ranks: PD set"
         assert np.array_equal(got["damage"], ref["damage"]), f"{ranks} ranks: broken bonds"
+        # The load-balance weight is a function of (model, active_bonds) alone.
+        assert np.array_equal(got["active_bonds"], ref["active_bonds"]), f"{ranks} ranks: weights"
         for name in ("x", "v"):
             err = np.abs(got[name] - ref[name]).max() / np.abs(ref[name]).max()
             # Round-off from the grid's summation order, amplified over the steps.
@@ -72,5 +85,5 @@ def test_spb_bar_matches_across_rank_counts(tmp_path):
     assert ckpt.exists()
     hpcmpm(2, "restart", str(ckpt), "--out", str(tmp_path / "restart"), "--quiet")
     again = final_frame(tmp_path / "restart")
-    for name in ("x", "v", "F", "model", "damage", "EE"):
+    for name in ("x", "v", "F", "model", "damage", "EE", "active_bonds"):
         assert np.array_equal(again[name], frames[2][name]), f"restart: {name}"

@@ -1,7 +1,7 @@
 """Load-balance weights: the bisection cuts at the weighted quantile (and uniform weights cut
 as the count does), a PD particle weighs 1 + c_b x (active half-bonds) MPM particles, an SPB
-particle once it is PD, a scene without PD has no weights, and the c_b measurement script
-runs."""
+particle once it is PD (its own count too), a scene without PD has no weights, and the c_b
+measurement script runs."""
 
 import runpy
 import sys
@@ -86,26 +86,48 @@ upper = [0.7, 0.7]
 """
 
 
+def hand_count(x0, spacing, horizon=3.015):
+    """Half-bonds of each point by brute force over all pairs: partners with |X| < (horizon +
+    1/2) spacings (PA-HHB partial volumes: every partner whose cell overlaps the horizon)."""
+    d2 = np.sum((x0[:, None, :] - x0[None, :, :]) ** 2, axis=-1) / spacing ** 2
+    return np.sum((d2 > 0) & (d2 < (horizon + 0.5) ** 2), axis=1)
+
+
 def test_spb_particles_weigh_their_bonds_once_pd():
     """Before conversion every SPB particle weighs one unit; once PD (all of them, the
-    verification switch), an undamaged one weighs an interior 2D family (36 half-bonds at the
-    default 3.015 spacings with partial volumes, counted by hand: |k|^2 < 3.515^2) at the
-    correspondence model's c_b, and a damaged one (1 - damage) of it (the damage estimates the broken
-    fraction)."""
+    verification switch), each weighs its own intact half-bonds at the correspondence
+    model's c_b: the count of partners within the family radius, by brute force from the
+    reference positions (an interior particle of the 2D lattice has 36 at the default 3.015
+    spacings, |k|^2 < 3.515^2 by hand; a corner one 12 (|k|^2 < 3.515^2 over the quarter
+    plane k >= 0 without the origin), not the interior family the weights once assumed).
+    Breaking the half-bonds of three particles by hand, the next step's count drops them to
+    one unit and leaves the others."""
     sc = parse_scene(SPB_SCENE, "spb.toml")
     sim = Simulation(sc, make_domain(sc, Communicator()))
     initial_particles(sim)
     unit, c_b = sim.particle_weight, bond_cost(2, "correspondence")
     assert np.all(sim.load_weights() == unit)
-    sim.extensions[0].convert_all = True
+    ext = sim.extensions[0]
+    ext.convert_all = True
     sim.step(1e-4)
     p = sim.particles
     assert np.all(p["model"] == 1)
-    p["damage"][:] = 0.0
-    p["damage"][:3] = 0.5
-    want = np.full(p.n, unit + round(unit * c_b * 36))
-    want[:3] = unit + round(unit * c_b * 18)
+    want_bonds = hand_count(p["x0"], ext.spacing)
+    assert want_bonds.max() == 36 and want_bonds.min() == 12
+    assert np.array_equal(p["active_bonds"], want_bonds)
+    want = unit + np.rint(unit * c_b * want_bonds).astype(np.int64)
     assert np.array_equal(sim.load_weights(), want)
+    # Break every half-bond of three particles (bond rows of ids 0, 1, 2) and step again at
+    # rest: nothing else breaks, and their partners keep their own half-bonds to them.
+    b = ext.bonds
+    for row in np.flatnonzero(np.isin(ext.bond_ids, [0, 1, 2])):
+        b.status[b.offsets[row]:b.offsets[row + 1]] = 0
+    sim.step(1e-4)
+    cut = np.isin(p["id"], [0, 1, 2])
+    want_bonds = np.where(cut, 0, hand_count(p["x0"], ext.spacing))
+    assert np.array_equal(p["active_bonds"], want_bonds)
+    want = unit + np.rint(unit * c_b * want_bonds).astype(np.int64)
+    assert np.array_equal(sim.load_weights(), want) and np.all(sim.load_weights()[cut] == unit)
 
 
 def test_scene_without_pd_has_no_weights():

@@ -100,15 +100,16 @@ def test_a_scene_that_never_converts_allocates_nothing_pd():
     assert ext.pd_global == 0 and ext.bonds is None and ext.halo is None
     assert set(spb.grid.kinds) - set(mpm.grid.kinds) == {"spb_energy"}
     assert set(spb.particles.specs) - set(mpm.particles.specs) == {"x0", "EE", "model",
-                                                                     "damage"}
+                                                                     "damage", "active_bonds"}
     assert not {"pd", "spb_retransfer"} & set(spb.timers.seconds)
     assert spb.particles["EE"].max() > 0.0
     assert np.all(spb.particles["model"] == 0)
     # Per particle and step eq. 6.10 adds one eigen-decomposition and a 9-node scalar
     # scatter (P2G scatters 3 fields to the same 9 nodes); per node, one more field in the
-    # ghost sum and fill. Bytes per particle: x0 16 + EE 8 + model 1 + damage 8 = 33.
+    # ghost sum and fill. Bytes per particle: x0 16 + EE 8 + model 1 + damage 8 +
+    # active_bonds 4 = 37.
     extra = spb.particles.nbytes_per_particle() - mpm.particles.nbytes_per_particle()
-    assert extra == 33
+    assert extra == 37
 
 
 def test_3d_block_converts_and_keeps_its_momentum():
