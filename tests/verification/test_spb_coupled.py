@@ -55,9 +55,11 @@ def bar_period(coupling=None, cells=50, horizon=3.015):
 def test_patch_test_picks_the_exclusive_coupling():
     """Measured (50 cells, delta = 3.015 spacings = 1.5 dx): MPM alone 10.036; exclusive
     10.344 (+3.1 %), additive 7.104 (-29.2 %, the doubled stiffness of Alg. 3 as printed). The
-    exclusive error is the PD boundary layer, which scales with delta: 10.226 (+2.1 %) at 100
-    cells, 10.077 (+0.4 %) with delta = 2.015 spacings at 50 cells. The issue's 2 % is met by
-    exclusive at delta <= 2 spacings only; at the default horizon it is missed (reported)."""
+    exclusive error grows with delta: 10.226 (+2.1 %) at 100 cells, 10.077 (+0.4 %) with
+    delta = 2.015 spacings at 50 cells. It is the fixed end: the wall holds PD particles only
+    through the grid while their cut families pull them into the bar (docs/studies.md, SPB
+    patch test). The issue's 2 % is met by exclusive at delta <= 2 spacings only; at the
+    default horizon it is missed (reported)."""
     mpm = bar_period()
     exclusive = bar_period("exclusive")
     additive = bar_period("additive")
