@@ -11,12 +11,16 @@ Measured at a13e8da (1 rank): elongation at separation 0.030 (dx = 0.028), 0.062
 0.081 (0.007): not grid independent. The horizon is 3.015 spacings, so delta shrinks with dx,
 and a bond's break strain under eq. 6.11-6.12 grows as delta^(-1/2) (W ~ e^2 |X|^2 / delta^4
 against W_c ~ G_c / delta^3), as the critical stretch of any PD model with a fixed G_c does.
+With the horizon fixed in length (``--fixed-horizon``: delta = 3.015 x 0.014 = 0.0422 at every
+dx, so 3.015, 6.03 and 12.06 spacings) the elongation is 0.0304, 0.0331, 0.0313: grid
+independent, as 003 claims, once delta is held fixed (2026-11-30, main).
 Stress at the first conversion (the converting particles' mean, now): -8.7 %, -5.2 %, -5.4 %
 of sigma_c, the stress waves of the sudden pull (2 rho c v = 15 % of sigma_c at 0.3 m/s);
 at their largest stress so far it is sigma_c (tests/verification/test_spb_coupled.py).
 
     python scripts/study_spb_bar.py                 # dx = 0.028, 0.014, 0.007 (minutes)
     python scripts/study_spb_bar.py --smoke         # dx = 0.028 only (the CI smoke test)
+    python scripts/study_spb_bar.py --fixed-horizon  # delta fixed at 3.015 x 0.014 = 0.0422
 """
 
 from __future__ import annotations
@@ -53,11 +57,16 @@ def separated(sim) -> bool:
     return bool(np.max(cracked[counts > 0] / counts[counts > 0]) >= 0.9)
 
 
-def run(dx: float, end_time: float) -> dict:
+def run(dx: float, end_time: float, horizon: float | None = None) -> dict:
+    """``horizon``: delta in length units, fixed across dx (the horizon key then grows as
+    delta / spacing); None: 3.015 spacings (the default, delta shrinking with dx)."""
     ppc = 2
-    l0 = 3.015 * dx / ppc
+    spacing = dx / ppc
+    spacings = 3.015 if horizon is None else horizon / spacing
+    l0 = spacings * spacing
     scene = load_scene(SCENE, [f"simulation.dx={dx}", f"simulation.end_time={end_time}",
-                               f"materials.0.failure.grid_energy={l0 * SIGMA_C ** 2}"])
+                               f"materials.0.failure.grid_energy={l0 * SIGMA_C ** 2}",
+                               f"materials.0.failure.horizon={spacings}"])
     sim = Simulation(scene, make_domain(scene, Communicator()))
     initial_particles(sim)
     out: dict = {"dx": dx, "n": sim.particles.n}
@@ -91,11 +100,16 @@ def run(dx: float, end_time: float) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--smoke", action="store_true", help="coarsest dx only, short run")
+    ap.add_argument("--fixed-horizon", action="store_true",
+                    help="delta = 3.015 spacings of the coarsest dx at every dx")
+    ap.add_argument("--dx", type=float, nargs="+", help="grid spacings (default 0.028 0.014 "
+                    "0.007)")
     args = ap.parse_args()
-    spacings = [0.028] if args.smoke else [0.028, 0.014, 0.007]
+    spacings = [0.028] if args.smoke else (args.dx or [0.028, 0.014, 0.007])
     end = 0.05 if args.smoke else 0.15
+    horizon = 3.015 * max(spacings) / 2 if args.fixed_horizon else None
     for dx in spacings:
-        r = run(dx, end)
+        r = run(dx, end, horizon)
         conv = (f"first conversion at t = {r['t_convert']:.4f}, sigma = "
                 f"{r['sigma_convert']:.1f} ({r['sigma_convert'] / SIGMA_C - 1:+.1%})"
                 if "t_convert" in r else "no conversion")
