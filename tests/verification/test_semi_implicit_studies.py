@@ -26,3 +26,22 @@ def test_pie_impact_is_stable_far_above_the_explicit_step():
     at t = 0.129) without an instability."""
     result = study_semi_implicit_stability.study("pie_2d", (300,), window=(0.125, 0.14, 3.0))
     assert result["runs"]["300"]["stable"], result["runs"]["300"]["reason"]
+
+
+def test_semi_implicit_benchmark_smoke():
+    """scripts/bench_semi_implicit.py at its smoke sizes (a few steps), so the benchmark the
+    BENCHMARKS.md speed-ups, CG counts and Hessian-product ratios come from does not rot: every
+    section reports finite, positive times, and the product and its tangents are timed."""
+    import math
+
+    import bench_semi_implicit
+
+    results = bench_semi_implicit.main(["all", "--smoke"])
+    for name, row in results["speedup"].items():
+        for integrator in ("explicit", "semi_implicit"):
+            assert row[integrator]["wall_s"] > 0.0 and row[integrator]["steps"] > 0, name
+        assert math.isfinite(row["observable_relative_difference"]), name
+    assert set(results["cg"]) == set(bench_semi_implicit.CG_SCENES)
+    for name, row in results["hessian"].items():
+        assert row["hessian_product_s"] > 0.0 and row["tangent_s"] > 0.0, name
+        assert math.isfinite(row["ratio"]) and math.isfinite(row["tangent_ratio"]), name
