@@ -12,6 +12,10 @@ Interface::
         def __init__(self, sim)
         def step(self, sim, dt) -> None            # one step of the phases
         def stable_dt(self, sim, speed) -> float   # speed: global max |v_p|
+        @staticmethod
+        def scratch_bytes_per_particle(dim) -> int # per-particle arrays it allocates (at
+                                                   # the particles' capacity), for the
+                                                   # start-up memory estimate
 """
 
 from __future__ import annotations

@@ -31,6 +31,11 @@ class ExplicitIntegrator:
         sim.after_g2p(dt)  # extensions (peridynamic bodies, 003 Alg. 2)
         sim.migrate()
 
+    @staticmethod
+    def scratch_bytes_per_particle(dim: int) -> int:
+        """No per-particle arrays beyond the particle fields."""
+        return 0
+
     def stable_dt(self, sim, speed: float) -> float:
         """``cfl dx / (c_max + |v|_max)`` (the wave-speed CFL bound), and no more than any
         material's own explicit limit (e.g. viscous: rho dx^2 / (2 d mu_N))."""
