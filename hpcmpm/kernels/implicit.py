@@ -34,6 +34,26 @@ from numba import njit
 from .shape import stencil_base, weights
 
 
+@njit(cache=True, inline="always")
+def weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx):
+    """grad w_ip of stencil node (i, j) in 2D: MLS's ``w D^-1 (x_i - x_p)`` (e = the stencil
+    base's offset from x_p) or the B-spline gradient; the one definition every loop below
+    uses, so L_p, the force and the Hessian product see the same gradient."""
+    if mls:
+        wd = w0[i] * w1[j] * dinv
+        return wd * (e0 + i * dx), wd * (e1 + j * dx)
+    return dw0[i] * w1[j], w0[i] * dw1[j]
+
+
+@njit(cache=True, inline="always")
+def weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2, dinv, e0, e1, e2, dx):
+    """3D version of `weight_gradient_2d`; wij = w0[i] w1[j], hoisted out of the k loop."""
+    if mls:
+        wd = wij * w2[k] * dinv
+        return wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
+    return dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+
+
 @njit(cache=True)
 def contract_2d(x, u, mls, order, dinv_factor, dx, domain_lo, origin, L):
     """L_p = sum_i u_i grad w_ip^T in 2D. x (n, 2); u (nx, ny, 2) on the block; L (n, 2, 2)."""
@@ -55,11 +75,7 @@ def contract_2d(x, u, mls, order, dinv_factor, dx, domain_lo, origin, L):
         a00 = a01 = a10 = a11 = 0.0
         for i in range(s):
             for j in range(s):
-                if mls:
-                    wd = w0[i] * w1[j] * dinv
-                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
-                else:
-                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 u0, u1 = u[l0 + i, l1 + j, 0], u[l0 + i, l1 + j, 1]
                 a00 += u0 * g0
                 a01 += u0 * g1
@@ -94,11 +110,8 @@ def contract_3d(x, u, mls, order, dinv_factor, dx, domain_lo, origin, L):
             for j in range(s):
                 wij = w0[i] * w1[j]
                 for k in range(s):
-                    if mls:
-                        wd = wij * w2[k] * dinv
-                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
-                    else:
-                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
+                                                    dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
                     u0, u1, u2 = u[n0, n1, n2, 0], u[n0, n1, n2, 1], u[n0, n1, n2, 2]
                     a00 += u0 * g0
@@ -137,11 +150,7 @@ def scatter_tensor_2d(x, G, scale, mls, order, dinv_factor, dx, domain_lo, origi
         t10, t11 = scale * G[p, 1, 0], scale * G[p, 1, 1]
         for i in range(s):
             for j in range(s):
-                if mls:
-                    wd = w0[i] * w1[j] * dinv
-                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
-                else:
-                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 out[l0 + i, l1 + j, 0] += t00 * g0 + t01 * g1
                 out[l0 + i, l1 + j, 1] += t10 * g0 + t11 * g1
 
@@ -174,11 +183,8 @@ def scatter_tensor_3d(x, G, scale, mls, order, dinv_factor, dx, domain_lo, origi
             for j in range(s):
                 wij = w0[i] * w1[j]
                 for k in range(s):
-                    if mls:
-                        wd = wij * w2[k] * dinv
-                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
-                    else:
-                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
+                                                    dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
                     out[n0, n1, n2, 0] += t00 * g0 + t01 * g1 + t02 * g2
                     out[n0, n1, n2, 1] += t10 * g0 + t11 * g1 + t12 * g2
@@ -206,11 +212,7 @@ def scatter_diagonal_2d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
         l0, l1 = b0 - o0, b1 - o1
         for i in range(s):
             for j in range(s):
-                if mls:
-                    wd = w0[i] * w1[j] * dinv
-                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
-                else:
-                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 for a in range(2):
                     out[l0 + i, l1 + j, a] += (K[p, a, 0, 0] * g0 * g0
                                                + (K[p, a, 0, 1] + K[p, a, 1, 0]) * g0 * g1
@@ -242,11 +244,8 @@ def scatter_diagonal_3d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
             for j in range(s):
                 wij = w0[i] * w1[j]
                 for k in range(s):
-                    if mls:
-                        wd = wij * w2[k] * dinv
-                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
-                    else:
-                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
+                                                    dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
                     for a in range(3):
                         out[n0, n1, n2, a] += (
@@ -281,11 +280,7 @@ def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
         a0 = a1 = a2 = a3 = 0.0
         for i in range(s):
             for j in range(s):
-                if mls:
-                    wd = w0[i] * w1[j] * dinv
-                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
-                else:
-                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 u0, u1 = u[l0 + i, l1 + j, 0], u[l0 + i, l1 + j, 1]
                 a0 += u0 * g0
                 a1 += u0 * g1
@@ -297,11 +292,7 @@ def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
         t3 = T[p, 3, 0] * a0 + T[p, 3, 1] * a1 + T[p, 3, 2] * a2 + T[p, 3, 3] * a3
         for i in range(s):
             for j in range(s):
-                if mls:
-                    wd = w0[i] * w1[j] * dinv
-                    g0, g1 = wd * (e0 + i * dx), wd * (e1 + j * dx)
-                else:
-                    g0, g1 = dw0[i] * w1[j], w0[i] * dw1[j]
+                g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 out[l0 + i, l1 + j, 0] += t0 * g0 + t1 * g1
                 out[l0 + i, l1 + j, 1] += t2 * g0 + t3 * g1
 
@@ -332,11 +323,8 @@ def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
             for j in range(s):
                 wij = w0[i] * w1[j]
                 for k in range(s):
-                    if mls:
-                        wd = wij * w2[k] * dinv
-                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
-                    else:
-                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
+                                                    dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
                     u0, u1, u2 = u[n0, n1, n2, 0], u[n0, n1, n2, 1], u[n0, n1, n2, 2]
                     a0 += u0 * g0
@@ -361,11 +349,8 @@ def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
             for j in range(s):
                 wij = w0[i] * w1[j]
                 for k in range(s):
-                    if mls:
-                        wd = wij * w2[k] * dinv
-                        g0, g1, g2 = wd * (e0 + i * dx), wd * (e1 + j * dx), wd * (e2 + k * dx)
-                    else:
-                        g0, g1, g2 = dw0[i] * w1[j] * w2[k], w0[i] * dw1[j] * w2[k], wij * dw2[k]
+                    g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
+                                                    dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
                     out[n0, n1, n2, 0] += t0 * g0 + t1 * g1 + t2 * g2
                     out[n0, n1, n2, 1] += t3 * g0 + t4 * g1 + t5 * g2
