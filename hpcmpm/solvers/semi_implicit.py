@@ -306,6 +306,7 @@ class SemiImplicitIntegrator:
             self._G = np.zeros((n, d, d))
             self._dL = np.zeros((n, d, d))
             self._dG = np.zeros((n, d, d))
+            self._T = np.zeros((n, d * d, d * d))  # the tangents (`_tangent`)
             self._scratch_n = n
         self._ranges = [(0, p.n)] if sim._all_on_grid else \
             [sim.group_slices[g] for g in sim._on_grid]
@@ -396,8 +397,6 @@ class SemiImplicitIntegrator:
         if self._tangent_ready:
             return
         d, n = sim.dim, sim.particles.n
-        if self._T is None or self._T.shape[0] < n:
-            self._T = np.empty((sim.particles.capacity, d * d, d * d))
         T = self._T
         with sim.timers("solve_material"):
             for c in range(d):

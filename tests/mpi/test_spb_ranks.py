@@ -49,9 +49,7 @@ def test_spb_bar_matches_across_rank_counts(tmp_path):
     margins = ext.margins(sim.domain)
     p = sim.particles
     order = np.argsort(p["id"])
-    ref = {k: p[f][order] for k, f in (("id", "id"), ("x", "x"), ("v", "v"),
-                                       ("model", "model"), ("damage", "damage"),
-                                       ("active_bonds", "active_bonds"))}
+    ref = {k: p[k][order] for k in ("id", "x", "v", "model", "damage", "active_bonds")}
     weights = sim.load_weights()[order]
     print(f"1 rank: PD {int((ref['model'] == 1).sum())} of {len(order)}, damaged "
           f"{int((ref['damage'] > 0).sum())}, smallest margins: G_i to G_EE "
