@@ -13,7 +13,10 @@ PD force on top of the MPM stress, as Alg. 3 prints), ``bond_failure`` ("energy"
 printed, "work" the accumulated work, "stretch" eq. 4.8 with ``critical_stretch``),
 ``influence`` ("constant" omega = 1, or "linear" omega = |X|/delta as eq. 6.13 prints),
 ``horizon`` (delta in particle spacings, default 3.015), ``stabilization`` (Silling 2017 zero-energy-mode control, times the PMB micromodulus),
-``max_bond_stretch`` (every bond breaks beyond it; sets the PD halo reach).
+``max_bond_stretch`` (every bond breaks beyond it; sets the PD halo reach), ``clamp``
+("sticky_walls": a PD particle within a horizon of a sticky domain wall is bonded to the
+mirror image of its family, a clamped end, hpcmpm/pd/clamp.py; "none": the wall holds PD
+particles only through the grid).
 
 A material takes part when its class lists ``"failure": SPB_FAILURE`` in ``parameters`` and can
 give a stress for peridynamics at a deformation gradient F^PD (`pd_stress`): the elastic models,
@@ -59,6 +62,9 @@ SPB_SCHEMA = {
                            doc="zero-energy-mode penalty, times the PMB micromodulus"),
     "max_bond_stretch": Param(0.0, math.inf, required=False, default=1.0,
                               doc="bonds stretched beyond it break (sets the halo reach)"),
+    "clamp": choice(("sticky_walls", "none"), "sticky_walls",
+                    doc="sticky_walls: PD particles near a sticky domain wall get the mirror "
+                        "bonds of a clamped end (hpcmpm/pd/clamp.py); none: the grid only"),
 }
 SPB_FAILURE = table(SPB_SCHEMA, doc="SPB-MPM failure (003 ch. 6)")
 
@@ -83,7 +89,7 @@ def no_pd_stress_problem(type_name: str) -> str:
 
 # Keys every SPB material of a scene must agree on: one extension, one bond set.
 SHARED_KEYS = ("coupling", "bond_failure", "critical_stretch", "influence", "horizon",
-               "max_bond_stretch")
+               "max_bond_stretch", "clamp")
 
 
 def failure_scene_problems(materials, transfer: str, integrator: str) -> list[tuple[str, str]]:

@@ -59,6 +59,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .clamp import NO_CLAMP, NO_FACES
 from .correspondence import correspondence_kinematics
 from .families import INFLUENCES
 from .geometry import bond_vectors, norm3
@@ -291,7 +292,7 @@ class BondEnergy:
         b.add_state(PLASTIC_STATE)
         broken = correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
                                            b.weight, self.s0, pts.n_owned, self.F, self.Kinv,
-                                           self.active)
+                                           self.active, NO_FACES, NO_CLAMP)
         bond_iso_stretches(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                            pts.n_owned, self.eiso)
         return broken

@@ -32,6 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .clamp import NO_CLAMP, NO_FACES, ghost_bond, ghost_weight
 from .geometry import bond_vectors, norm3
 
 # det K below this fraction of (tr K / d)^d: the family does not span the space.
@@ -67,10 +68,66 @@ def _invert(M, out, dim):
 
 
 @njit(cache=True, error_model="numpy")
+def _ghost_sources(offsets, status, slot, p, k):
+    """The k-th ghost source of p: p itself (k = offsets[p] - 1), else the partner of an
+    intact bond; -1 when that bond is broken."""
+    if k < offsets[p]:
+        return p
+    if status[k] == 0 or slot[k] < 0:
+        return -1
+    return slot[k]
+
+
+@njit(cache=True, error_model="numpy")
+def _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv, K, N,
+                 A, F, active, G, acc, forces):
+    """p's ghost bonds (clamp.py): add them to its K and N, or with ``forces`` add their pair
+    forces to acc (the ghost's state from its source: A_q' = A_q, F_q' = I - (F_q - I) R)."""
+    reach = clamp[0] + 0.5 * clamp[1]
+    for f in range(faces.shape[0]):
+        axis = int(faces[f, 0])
+        plane = faces[f, 1]
+        if abs(x0[p, axis] - plane) >= reach:
+            continue
+        for k in range(offsets[p] - 1, offsets[p + 1]):
+            q = _ghost_sources(offsets, status, slot, p, k)
+            if q < 0:
+                continue
+            ghost_bond(x, x0, p, q, axis, plane, dim, Yv, Xv)
+            w = ghost_weight(Xv, clamp[0], clamp[1], clamp[2] != 0.0)
+            if w == 0.0:
+                continue
+            if not forces:
+                wv = w * vol[q]
+                for i in range(dim):
+                    for j in range(dim):
+                        K[i, j] += wv * Xv[i] * Xv[j]
+                        N[i, j] += wv * Yv[i] * Xv[j]
+                continue
+            vv = vol[p] * vol[q]
+            gs = G * w / norm3(Xv[0], Xv[1], Xv[2])
+            for i in range(dim):
+                tp = 0.0
+                tq = 0.0
+                zp = Yv[i]
+                zq = Yv[i] - Xv[i]
+                for j in range(dim):
+                    tp += A[p, i, j] * Xv[j]
+                    tq += A[q, i, j] * Xv[j]
+                    zp -= F[p, i, j] * Xv[j]
+                    # (F_q - I) R X: R flips the axis component of X
+                    zq += (F[q, i, j] - (1.0 if i == j else 0.0)) * \
+                        (-Xv[j] if j == axis else Xv[j])
+                acc[i] += (w * (tp + tq) + gs * (active[p] * zp + active[q] * zq)) * vv
+
+
+@njit(cache=True, error_model="numpy")
 def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_owned,
-                              F, Kinv, active):
+                              F, Kinv, active, faces, clamp):
     """Failure (stretch > s0 breaks), then K^-1 and F of the owned points (F, Kinv
-    (n, d, d), active (n,) 1.0/0.0). Returns the number of half-bonds broken."""
+    (n, d, d), active (n,) 1.0/0.0). Returns the number of half-bonds broken. ``faces``
+    (nf, 2): (axis, plane) of clamping walls and ``clamp`` (delta, spacing, linear influence)
+    add the ghost bonds of clamp.py (nf = 0: none)."""
     dim = x.shape[1]
     K = np.empty((dim, dim))
     N = np.empty((dim, dim))
@@ -100,6 +157,9 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
                 for j in range(dim):
                     K[i, j] += wv * Xv[i] * Xv[j]
                     N[i, j] += wv * Yv[i] * Xv[j]
+        if faces.shape[0] > 0:
+            _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv, K, N,
+                         F, F, active, 0.0, Xv, False)     # A, acc unused
         tr = 0.0
         for i in range(dim):
             tr += K[i, i]
@@ -175,14 +235,16 @@ def _pair_force(x, x0, vol, p, q, dim, w, A, F, active, G, Xv, Yv, out):
 
 @njit(cache=True, error_model="numpy")
 def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, active, G,
-                          n_owned, f):
-    """f_p = sum_q [w (A_p + A_q) X + (G w/|X|)(z_p + z_q)] V_p V_q over intact bonds; A, F,
+                          n_owned, f, faces, clamp):
+    """f_p = sum_q [w (A_p + A_q) X + (G w/|X|)(z_p + z_q)] V_p V_q over intact bonds, then
+    over the ghost bonds of ``faces``/``clamp`` (as `correspondence_kinematics`); A, F,
     active of owned + halo points."""
     dim = x.shape[1]
     Xv = np.empty(3)
     Yv = np.empty(3)
     fb = np.empty(3)
     acc = np.empty(3)
+    unused = np.empty((dim, dim))      # _ghost_bonds' K, N
     for p in range(n_owned):
         acc[:] = 0.0
         for b in range(offsets[p], offsets[p + 1]):
@@ -191,6 +253,9 @@ def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, activ
             _pair_force(x, x0, vol, p, slot[b], dim, weight[b], A, F, active, G, Xv, Yv, fb)
             for i in range(dim):
                 acc[i] += fb[i]
+        if faces.shape[0] > 0:
+            _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv,
+                         unused, unused, A, F, active, G, acc, True)
         for i in range(dim):
             f[p, i] = acc[i]
 
@@ -293,7 +358,7 @@ class Correspondence:
         b = pts.bonds
         return correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
                                          b.weight, self.s0, pts.n_owned, self.F, self.Kinv,
-                                         self.active)
+                                         self.active, NO_FACES, NO_CLAMP)
 
     def set_stress(self, tau, n_owned: int) -> None:
         correspondence_force_state(self.F, self.Kinv, tau, self.active, n_owned, self.A)
@@ -313,7 +378,7 @@ class Correspondence:
         b, n, d = pts.bonds, pts.n_owned, self.dim
         F, Kinv, active = np.empty((n, d, d)), np.empty((n, d, d)), np.empty(n)
         correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
-                                  b.weight, math.inf, n, F, Kinv, active)
+                                  b.weight, math.inf, n, F, Kinv, active, NO_FACES, NO_CLAMP)
         total = stabilization_energy(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
                                      b.weight, F, active, self.G, n)
         if self.energy is not None:
@@ -323,5 +388,6 @@ class Correspondence:
     def forces(self, pts, f) -> int:
         b = pts.bonds
         correspondence_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                              self.A, self.F, self.active, self.G, pts.n_owned, f)
+                              self.A, self.F, self.active, self.G, pts.n_owned, f, NO_FACES,
+                              NO_CLAMP)
         return 0

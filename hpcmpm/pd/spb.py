@@ -71,6 +71,7 @@ from ..parallel.exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
 from ..parallel.pd_halo import TAG_PD_BONDS, PDHalo, align_rows, redistribute_segments
 from ..state import VECTOR
 from .bonds import Bonds
+from .clamp import NO_FACES, sticky_faces
 from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
@@ -114,6 +115,10 @@ class SPBExtension(CheckpointedBonds):
         self.s0 = min(f0["critical_stretch"], self.s_reach) if self.failure == "stretch" \
             else self.s_reach
         self.skin = self.spacing
+        # The clamp's ghost bonds (clamp.py) at the sticky domain walls.
+        self.clamp_faces = sticky_faces(sim.scene) if f0["clamp"] == "sticky_walls" \
+            else NO_FACES
+        self.clamp = np.array([self.delta, self.spacing, float(self.linear_influence)])
         self.energy_code = np.array([ENERGIES.index(s["energy"]) for s in specs])
         # eq. 6.10 divides tau by det F, or by the material's own volume ratio J where it
         # carries no F (the impact models in mode "L").
@@ -368,7 +373,7 @@ class SPBExtension(CheckpointedBonds):
         n = len(pd_rows)
         self.broken += correspondence_kinematics(
             self.pts_x, self.pts_x0, self.pts_vol, b.offsets, b.slot, b.status, b.weight,
-            self.s0, n, self.F, self.Kinv, self.active)
+            self.s0, n, self.F, self.Kinv, self.active, self.clamp_faces, self.clamp)
         tau = np.zeros((n, self.dim, self.dim))
         for g in self.groups:
             # pd_rows ascend and each material's rows are one slice: its PD rows are too.
@@ -396,7 +401,8 @@ class SPBExtension(CheckpointedBonds):
                           {k: a[n:] for k, a in fields.items()})
         f = np.empty((n, self.dim))
         correspondence_forces(self.pts_x, self.pts_x0, self.pts_vol, b.offsets, b.slot,
-                              b.status, b.weight, self.A, self.F, self.active, self.G, n, f)
+                              b.status, b.weight, self.A, self.F, self.active, self.G, n, f,
+                              self.clamp_faces, self.clamp)
         dv = dt * f / p["mass"][pd_rows][:, None]
         p["v"][pd_rows] += dv
         p["x"][pd_rows] += dt * dv            # x^n + dt v^{n+1} (line 21 corrected)

@@ -1,0 +1,74 @@
+"""A peridynamic clamp at sticky domain walls: the mirror images of a PD particle's family
+across the wall (not in 003; issue 11's patch test needs it).
+
+A sticky wall holds the grid nodes on it. A PD particle within a horizon of it has a family
+cut by the wall, so its bonds pull it into the body and the wall holds it only through the
+grid: a compliant clamp (the SPB patch test's +3 %, docs/studies.md). The clamp gives each
+such particle p the bonds it would have to a body continued through the wall by the odd
+extension u(X') = -u(R X'), R the reflection in the wall plane (the classical image of a
+fixed end: the displacement vanishes on the wall and a displacement linear in the distance
+from the wall continues as the same line):
+
+    ghost q' of q (q = p itself or an intact partner of p):
+        X_q' = R X_q,   x_q' = X_q' - (x_q - X_q),   w' = beta(|X_q' - X_p|) omega(...)
+    a ghost exists where |X_q' - X_p| < delta + s/2 (the PA-HHB family radius); since
+    |X_q - X_p| <= |X_q' - X_p| for p and q on the same side, its source q is already in p's
+    family, so the ghosts need no search, storage or halo of their own.
+
+p's shape tensor and deformation gradient sum over its ghosts too (K, N of 003 eq. 4.4-4.5),
+and each ghost bond adds to p's force the correspondence pair force of
+`correspondence._pair_force` with the ghost's state taken from its source: A_q' = A_q and
+F_q' = I - (F_q - I) R (the odd extension's gradient). Both are exact where q's family is
+mirror-symmetric along the wall and its displacement gradient is normal to the wall, which a
+clamp imposes on the wall itself. The ghost's reaction goes to the wall, not to a particle:
+momentum is not conserved near a clamp, as at any support. A ghost bond is intact while its
+source bond is; it does not break by its own stretch (the wall is glued) and does not count
+in the damage.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .families import partial_volume
+from .geometry import norm3
+
+NO_FACES = np.zeros((0, 2))
+NO_CLAMP = np.zeros(3)
+
+
+def sticky_faces(scene) -> np.ndarray:
+    """(axis, plane coordinate) of the scene's sticky domain faces that are not periodic."""
+    faces = []
+    for face, spec in enumerate(scene.walls.faces):
+        axis, upper = divmod(face, 2)
+        if axis in scene.periodic or spec.condition != "sticky":
+            continue
+        faces.append((axis, (scene.domain_hi if upper else scene.domain_lo)[axis]))
+    return np.array(faces, dtype=np.float64).reshape(-1, 2)
+
+
+@njit(cache=True, error_model="numpy")
+def ghost_bond(x, x0, p, q, axis, plane, dim, Y, X):
+    """Y, X (length 3) of the bond from p to the ghost of q across the plane x_axis = plane
+    (module docstring)."""
+    for i in range(3):
+        if i < dim:
+            u = x[q, i] - x0[q, i]
+            Xq = 2.0 * plane - x0[q, i] if i == axis else x0[q, i]
+            X[i] = Xq - x0[p, i]
+            Y[i] = Xq - u - x[p, i]
+        else:
+            X[i] = 0.0
+            Y[i] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def ghost_weight(X, delta, spacing, linear):
+    """w' of a ghost bond with reference vector X; 0 outside the family radius."""
+    r = norm3(X[0], X[1], X[2])
+    if r >= delta + 0.5 * spacing:
+        return 0.0
+    w = partial_volume(r, delta, spacing, True)
+    return w * r / delta if linear else w

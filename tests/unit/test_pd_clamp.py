@@ -1,0 +1,97 @@
+"""The peridynamic clamp at a sticky wall (hpcmpm/pd/clamp.py): under a displacement that
+vanishes on the wall and is linear in the distance from it, a particle next to the wall is
+as balanced as an interior one when it is bonded to the mirror image of its family, and is
+not without it."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hpcmpm.materials.linear_elastic import _stress_2d, _stress_3d
+from hpcmpm.pd.clamp import NO_CLAMP, NO_FACES
+from hpcmpm.pd.correspondence import (correspondence_force_state, correspondence_forces,
+                                      correspondence_kinematics)
+from hpcmpm.pd.families import find_families
+
+DELTA = 3.015          # horizon in spacings (the default)
+PLANE = -2.0           # the wall x_0 = PLANE; the first particle row half a spacing off it
+
+
+def lattice(dim):
+    """A cubic lattice of unit spacing starting half a spacing from the wall, wide enough
+    along the wall that the middle columns are 2 horizons from every other surface."""
+    normal = np.arange(10) + PLANE + 0.5
+    along = np.arange(15 if dim == 3 else 17, dtype=float)
+    axes = [normal] + [along] * (dim - 1)
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, dim)
+
+
+def forces(x0, x, clamped):
+    n, dim = x0.shape
+    fam = find_families(x0, np.arange(n, dtype=np.int64), n, 1.0, DELTA)
+    b = fam.bonds
+    vol = np.ones(n)
+    F, Kinv, A = np.empty((n, dim, dim)), np.empty((n, dim, dim)), np.empty((n, dim, dim))
+    active = np.empty(n)
+    faces = np.array([[0.0, PLANE]]) if clamped else NO_FACES
+    clamp = np.array([DELTA, 1.0, 0.0]) if clamped else NO_CLAMP
+    status = b.status.copy()
+    correspondence_kinematics(x, x0, vol, b.offsets, b.slot, status, b.weight, math.inf, n,
+                              F, Kinv, active, faces, clamp)
+    tau = np.empty_like(F)
+    (_stress_3d if dim == 3 else _stress_2d)(F, tau, 1.0, 1.5)
+    correspondence_force_state(F, Kinv, tau, active, n, A)
+    f = np.empty((n, dim))
+    correspondence_forces(x, x0, vol, b.offsets, b.slot, status, b.weight, A, F, active, 0.1,
+                          n, f, faces, clamp)
+    # The magnitudes of a particle's terms summed, 2 |A| sum_q w |X| V V: round-off in f is
+    # a few eps of it (the scale the residual forces are measured against).
+    owner = np.repeat(np.arange(n), b.counts())
+    lengths = np.linalg.norm(x0[b.slot] - x0[owner], axis=1)
+    scale = 2 * np.abs(A).max() * np.bincount(owner, b.weight * lengths, minlength=n).max()
+    return F, f, scale
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("g", [(0.01, 0.0, 0.0), (0.0, 0.02, 0.0), (0.01, -0.02, 0.005)])
+def test_clamped_wall_rows_are_balanced_under_a_field_zero_on_the_wall(dim, g):
+    """u = g (x_0 - PLANE): stretch normal to the wall, shear along it, or both (the only
+    linear fields a clamp allows). With the clamp, every particle within a horizon of the
+    wall and 2 horizons from the other surfaces feels no force, to round-off (1e-12 of the
+    summed magnitudes of its 30-120 bond terms, ~1e-16 each); its F is exact (the
+    correspondence fit of an affine field). Without the clamp the rows by the wall are
+    pulled into the body by the bonds the wall cut (over 1 % of that sum)."""
+    x0 = lattice(dim)
+    grad = np.zeros((dim, dim))
+    grad[:, 0] = g[:dim]
+    x = x0 + np.outer(x0[:, 0] - PLANE, g[:dim])
+    mid = x0[:, 1:].mean(axis=0)
+    check = (x0[:, 0] - PLANE < DELTA) & np.all(np.abs(x0[:, 1:] - mid) < 1.0, axis=1)
+    assert check.sum() == 3        # the middle column's first three rows
+    F, f, scale = forces(x0, x, clamped=True)
+    np.testing.assert_allclose(F[check], np.broadcast_to(np.eye(dim) + grad, F[check].shape),
+                               rtol=0, atol=1e-13)
+    assert np.abs(f[check]).max() < 1e-12 * scale
+    _, f_cut, _ = forces(x0, x, clamped=False)
+    assert np.abs(f_cut[check]).max() > 0.01 * scale
+
+
+def test_ghost_bonds_follow_their_source_bond():
+    """Breaking every bond of the wall row leaves it only its own mirror image: its ghost
+    set shrinks with its family (a ghost is intact while its source bond is)."""
+    x0 = lattice(2)
+    n = len(x0)
+    fam = find_families(x0, np.arange(n, dtype=np.int64), n, 1.0, DELTA)
+    b = fam.bonds
+    row = np.flatnonzero(x0[:, 0] == PLANE + 0.5)
+    status = b.status.copy()
+    for p in row:
+        status[b.offsets[p]:b.offsets[p + 1]] = 0
+    F, Kinv, active = np.empty((n, 2, 2)), np.empty((n, 2, 2)), np.empty(n)
+    correspondence_kinematics(x0, x0, np.ones(n), b.offsets, b.slot, status, b.weight,
+                              math.inf, n, F, Kinv, active, np.array([[0.0, PLANE]]),
+                              np.array([DELTA, 1.0, 0.0]))
+    # one ghost bond (to its own image, along the normal) spans one direction only
+    assert not active[row].any()
+    assert active[np.flatnonzero(x0[:, 0] == PLANE + 1.5)].all()
