@@ -29,18 +29,18 @@ def hpcmpm(ranks: int, *args) -> None:
     assert "exceeds the CFL bound" not in proc.stderr
 
 
-def final_frame(out: Path) -> dict:
+def final_frame(out: Path, steps: int = STEPS) -> dict:
     data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
-    assert attrs["step"] == STEPS
+    assert attrs["step"] == steps
     return data
 
 
-def run(ranks: int, out: Path, *extra) -> dict:
-    args = ["run", SCENE, "--out", str(out), "--quiet", "--force", *extra]
-    for s in SETS:
+def run(ranks: int, out: Path, *extra, scene=SCENE, sets=SETS, steps=STEPS) -> dict:
+    args = ["run", scene, "--out", str(out), "--quiet", "--force", *extra]
+    for s in sets:
         args += ["--set", s]
     hpcmpm(ranks, *args)
-    return final_frame(out)
+    return final_frame(out, steps)
 
 
 def test_spb_bar_matches_across_rank_counts(tmp_path):
@@ -105,13 +105,8 @@ def test_spb_clamp_matches_across_rank_counts(tmp_path):
     ref = {k: p[k][order] for k in ("id", "x", "v", "model")}
     assert (ref["model"] == 1).all()
     for ranks in (2, 4):
-        out = tmp_path / f"n{ranks}"
-        args = ["run", CLAMP_SCENE, "--out", str(out), "--quiet", "--force"]
-        for s in CLAMP_SETS:
-            args += ["--set", s]
-        hpcmpm(ranks, *args)
-        data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
-        assert attrs["step"] == CLAMP_STEPS
+        data = run(ranks, tmp_path / f"n{ranks}", scene=CLAMP_SCENE, sets=CLAMP_SETS,
+                   steps=CLAMP_STEPS)
         assert np.array_equal(data["id"], ref["id"])
         assert np.array_equal(data["model"], ref["model"])
         for name in ("x", "v"):
