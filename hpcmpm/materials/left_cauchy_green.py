@@ -74,6 +74,11 @@ from .matrix import (EYE, add, add_identity, axpy, ddot, det, dim_of, inverse, l
 OB_EXPLICIT, OB_SPD, FE, FE_BDF2, HB, VM = 0, 1, 2, 3, 4, 5
 # Implicit isochoric return (isochoric_return.py): Herschel-Bulkley, and von Mises with eta = 0.
 HB_IMPLICIT = 6
+# mu = 0 (a compressible Newtonian fluid): the conformation enters neither the stress nor the
+# energy, so it is not advanced (b stays I; S = I, R = B = 0). Advanced, it grows without
+# bound under steady shear (tr b ~ shear strain^2) until det b_hat is lost to round-off: the
+# Newtonian channel stopped as "inadmissible" at t = 25.7 (shear strain ~130 at the walls).
+FLUID = 7
 PLASTICITY_MODES = {"ob_spd": OB_SPD, "ob_explicit": OB_EXPLICIT, "fe": FE, "fe_bdf2": FE_BDF2}
 
 # Keys every b_E model accepts: the moduli as (mu, lambda) or (E, nu), and the viscosity.
@@ -121,6 +126,9 @@ def plastic_factors(mode, b, f, fp, dt, inv_wi, sigma_y, inv_h, eta):
     """(S, R, B) of b_hat(L) = S + dt (L R + R^T L^T) + dt^2 L B L^T from the state at t^n
     (module docstring). b: b^n; f, fp: F_E^n, F_E^{n-1} (read by the fe modes only)."""
     r = dt * inv_wi
+    if mode == FLUID:
+        zero = scale(0.0, b)
+        return add_identity(zero, 1.0), zero, zero
     if mode == OB_EXPLICIT:
         return add_identity(scale(1.0 - r, b), r), b, scale(0.0, b)
     if mode == OB_SPD:

@@ -6,7 +6,9 @@ upper-convected derivative of b_OB = (I - b_OB) / Wi. The stress uses
 b_E = (J^2 / det b_OB)^(1/d) b_OB (eq. 5.5, 5.13), so the plastic flow is isochoric, with the
 compressible Neo-Hookean energy of eq. 5.8 and Newtonian viscosity (eq. 5.10-5.11, corrected:
 see `hpcmpm.materials.left_cauchy_green`). mu = 0 is a compressible Newtonian fluid,
-Wi = inf a Neo-Hookean solid on b (the 000 eq. 5.8 form, lam/2 (J - 1)^2).
+Wi = inf a Neo-Hookean solid on b (the 000 eq. 5.8 form, lam/2 (J - 1)^2). With mu = 0 the
+conformation is not advanced (it would grow without bound under steady shear and enters
+nothing): b stays I and only J evolves, whatever ``plasticity`` says.
 
 ``plasticity`` picks the time discretisation of the relaxation (S, R, B in the kernels module):
 
@@ -31,7 +33,7 @@ from __future__ import annotations
 import math
 
 from .base import Param, choice
-from .left_cauchy_green import (ELASTIC_KEYS, FE, FE_BDF2, OB_EXPLICIT, OB_SPD,
+from .left_cauchy_green import (ELASTIC_KEYS, FE, FE_BDF2, FLUID, OB_EXPLICIT, OB_SPD,
                                 PLASTICITY_MODES, LeftCauchyGreenMaterial)
 from ..state import TENSOR, FieldSpec
 
@@ -57,6 +59,10 @@ class OldroydB(LeftCauchyGreenMaterial):
         self.mode = PLASTICITY_MODES[self.plasticity]
         self.relaxation_time = self.params["relaxation_time"]
         self.inv_wi = 1.0 / self.relaxation_time  # 0.0 for inf
+        if self.mu == 0.0:
+            # A Newtonian fluid: no conformation to relax (left_cauchy_green.FLUID), so no
+            # F_E fields and no relaxation bound whatever `plasticity` says.
+            self.mode = FLUID
         if self.mode in (FE, FE_BDF2):
             self.fields["Fe"] = FieldSpec(TENSOR, "f8", "identity")
         if self.mode == FE_BDF2:
@@ -69,7 +75,7 @@ class OldroydB(LeftCauchyGreenMaterial):
         b loses definiteness (000 §5.7). fe and fe_bdf2 relax explicitly: measured stability
         limits dt/Wi = 1.25-2 (fe) and 1.6-4 (fe_bdf2; scripts/study_viscoelastic.py), so the
         same bound. ob_spd has none."""
-        if self.mode == OB_SPD or max_dt <= self.relaxation_time:
+        if self.mode in (OB_SPD, FLUID) or max_dt <= self.relaxation_time:
             return None
         why = ("b loses definiteness beyond (000 §5.7)" if self.mode == OB_EXPLICIT else
                "its explicit relaxation is unstable beyond")

@@ -254,3 +254,24 @@ def test_von_mises_implicit_plateau():
     tau = drive(mat, lambda t: L, 1e-2, 100).sigma()[:, 0, 0, 1]  # shear strain 1
     assert tau[-1] == pytest.approx(mat.shear_yield_stress(), rel=5e-3)
     assert tau[-1] == pytest.approx(tau[-20], rel=1e-9)
+
+
+@pytest.mark.parametrize("plasticity", PLASTICITIES)
+@pytest.mark.parametrize("dim", [2, 3])
+def test_newtonian_fluid_shears_forever(dim, plasticity):
+    """mu = 0 (a Newtonian fluid): steady shear to a strain of 2e4 keeps the exact stress
+    sigma_xy = mu_N gdot and J = 1 (round-off: 1e-12). The conformation, which enters nothing
+    at mu = 0, is not advanced: advanced, tr b grows as the strain squared (4e8 here), and in
+    the Newtonian channel det b_hat was lost to round-off at t = 25.7, which stopped the run
+    as inadmissible."""
+    mat = make_material(Spec("oldroyd_b", {"mu": 0.0, "lambda": LAM, "viscosity": MU_N,
+                                           "relaxation_time": math.inf,
+                                           "plasticity": plasticity}), dim)
+    rate = 100.0
+    L = np.zeros((dim, dim))
+    L[0, 1] = rate
+    res = drive(mat, lambda t: L, 1.0, 200)        # shear strain 2e4
+    sigma = res.sigma()[-1, 0]
+    assert sigma[0, 1] == pytest.approx(MU_N * rate, rel=1e-12)
+    assert abs(res.J[-1, 0] - 1.0) < 1e-12
+    np.testing.assert_array_equal(res.fields["b"][0], np.eye(dim))
