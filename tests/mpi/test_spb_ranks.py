@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcmpm.io.frames import read_frame
 from hpcmpm.pd.load import bond_cost
 from hpcmpm.runner import simulate
 from hpcmpm.scene import load_scene
-from test_restart import hpcmpm as launch
+from scene_runs import last_frame, run_scene
+from test_restart import hpcmpm
 
 SCENE = "inputs/spb_stretched_bar_2d.toml"
 DT, STEPS = 4e-5, 200
@@ -24,23 +24,12 @@ SETS = ["simulation.dx=0.014", f"simulation.dt={DT}", f"simulation.end_time={DT 
         "prescribed.1.velocity=[0.0, 3.0]", 'output.fields=["active_bonds"]']
 
 
-def hpcmpm(ranks: int, *args) -> None:
-    proc = launch(ranks, *args, timeout=500)   # test_restart.py: process-group kill on timeout
-    assert "exceeds the CFL bound" not in proc.stderr
-
-
 def final_frame(out: Path, steps: int = STEPS) -> dict:
-    data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
-    assert attrs["step"] == steps
-    return data
+    return last_frame(out, steps)
 
 
 def run(ranks: int, out: Path, *extra, scene=SCENE, sets=SETS, steps=STEPS) -> dict:
-    args = ["run", scene, "--out", str(out), "--quiet", "--force", *extra]
-    for s in sets:
-        args += ["--set", s]
-    hpcmpm(ranks, *args)
-    return final_frame(out, steps)
+    return run_scene(ranks, scene, sets, out, steps, *extra)
 
 
 def test_spb_bar_matches_across_rank_counts(tmp_path):
