@@ -26,7 +26,8 @@ What the engine calls, and when:
      (K^-1 after the sum), sigma^PD from the particle's own material at F^PD (snow at
      F^PD F_P^-1; shock and j2, which keep no total F: their own stress, handed over as
      tau = det(F^PD) sigma, `ImpactMaterial.pd_stress`), T = w P K^-1 X (eq. 6.8 = 4.7 with the P^T correction), force eq. 6.6
-     times V_p with Silling's zero-energy-mode control, v = v^ + dt f/m and x = x^n + dt v
+     times V_p with Silling's zero-energy-mode control (near a sticky domain wall K, F and
+     the force include the clamp's image bonds, clamp.py), v = v^ + dt f/m and x = x^n + dt v
      (line 21 prints x^ + dt v, which advances twice); then failure (energy_failure.py: eq.
      6.11 as printed or the accumulated work; or eq. 4.8), damage and the active half-bond
      counts (the load-balance weights, `add_load`).
