@@ -14,14 +14,21 @@ def last_frame(out: Path, steps: int) -> dict:
     return data
 
 
+def hpcmpm(ranks: int, *args, timeout: float = 500, past_cfl: bool = False):
+    """`hpcmpm *args` on ``ranks`` ranks (a process group killed on timeout). The rank tests
+    fix dt so every rank count takes the same steps; unless ``past_cfl``, that dt must stay
+    within the CFL bound throughout."""
+    proc = launch(ranks, *args, timeout=timeout)
+    assert past_cfl or "exceeds the CFL bound" not in proc.stderr
+    return proc
+
+
 def run_scene(ranks: int, scene: str, sets, out: Path, steps: int, *extra,
-              timeout: float = 500, past_cfl: bool = False) -> dict:
-    """`hpcmpm run scene --set ...` on ``ranks`` ranks (a process group killed on timeout);
-    the last frame, at step ``steps``. A fixed dt in ``sets`` keeps the steps the same on
-    every rank count; unless ``past_cfl``, it must stay within the CFL bound throughout."""
+              past_cfl: bool = False) -> dict:
+    """`hpcmpm run scene --set ...` on ``ranks`` ranks (`hpcmpm`); the last frame, at step
+    ``steps``."""
     args = ["run", scene, "--out", str(out), "--quiet", "--force", *extra]
     for s in sets:
         args += ["--set", s]
-    proc = launch(ranks, *args, timeout=timeout)
-    assert past_cfl or "exceeds the CFL bound" not in proc.stderr
+    hpcmpm(ranks, *args, past_cfl=past_cfl)
     return last_frame(out, steps)

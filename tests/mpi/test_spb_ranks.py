@@ -13,8 +13,7 @@ import numpy as np
 from hpcmpm.pd.load import bond_cost
 from hpcmpm.runner import simulate
 from hpcmpm.scene import load_scene
-from scene_runs import last_frame, run_scene
-from test_restart import hpcmpm
+from scene_runs import hpcmpm, last_frame, run_scene
 
 SCENE = "inputs/spb_stretched_bar_2d.toml"
 DT, STEPS = 4e-5, 200
@@ -24,12 +23,12 @@ SETS = ["simulation.dx=0.014", f"simulation.dt={DT}", f"simulation.end_time={DT 
         "prescribed.1.velocity=[0.0, 3.0]", 'output.fields=["active_bonds"]']
 
 
-def final_frame(out: Path, steps: int = STEPS) -> dict:
-    return last_frame(out, steps)
+def final_frame(out: Path) -> dict:
+    return last_frame(out, STEPS)
 
 
-def run(ranks: int, out: Path, *extra, scene=SCENE, sets=SETS, steps=STEPS) -> dict:
-    return run_scene(ranks, scene, sets, out, steps, *extra)
+def run(ranks: int, out: Path, *extra) -> dict:
+    return run_scene(ranks, SCENE, SETS, out, STEPS, *extra)
 
 
 def test_spb_bar_matches_across_rank_counts(tmp_path):
@@ -94,8 +93,7 @@ def test_spb_clamp_matches_across_rank_counts(tmp_path):
     ref = {k: p[k][order] for k in ("id", "x", "v", "model")}
     assert (ref["model"] == 1).all()
     for ranks in (2, 4):
-        data = run(ranks, tmp_path / f"n{ranks}", scene=CLAMP_SCENE, sets=CLAMP_SETS,
-                   steps=CLAMP_STEPS)
+        data = run_scene(ranks, CLAMP_SCENE, CLAMP_SETS, tmp_path / f"n{ranks}", CLAMP_STEPS)
         assert np.array_equal(data["id"], ref["id"])
         assert np.array_equal(data["model"], ref["model"])
         for name in ("x", "v"):
