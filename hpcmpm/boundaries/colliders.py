@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from ._block import block3, mass3, omega3, vec3
-from .contact import CONDITIONS, NO_BASIS, NO_COUNT, constrain, project
+from .contact import CONDITIONS, NO_BASIS, NO_COUNT, SEPARATE, constrain, project
 
 HALF_SPACE, SPHERE, BOX, CYLINDER = 0, 1, 2, 3
 SHAPES = {"half_space": HALF_SPACE, "sphere": SPHERE, "box": BOX, "cylinder": CYLINDER}
@@ -279,6 +279,11 @@ class Collider:
         moving collider sweep over material for one step before pushing it (Stomakhin 2013
         §8 uses the same choice). The active window is checked at the same time."""
         self._visit(velocity, origin, dx, domain_lo, t, dt, mass, False, NO_BASIS, NO_COUNT)
+
+    @property
+    def frictional(self) -> bool:
+        """Whether the collider is separate with friction (see `Walls.frictional`)."""
+        return self.condition == SEPARATE and self.friction > 0.0
 
     def constrain(self, velocity: np.ndarray, origin, dx: float, domain_lo, t: float,
                   dt: float, mass: np.ndarray, basis: np.ndarray, count: np.ndarray) -> None:

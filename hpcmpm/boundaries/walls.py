@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from ._block import block3, mass3
-from .contact import CONDITIONS, NO_BASIS, NO_COUNT, constrain, project
+from .contact import CONDITIONS, NO_BASIS, NO_COUNT, SEPARATE, constrain, project
 
 
 @njit(cache=True)
@@ -63,6 +63,13 @@ class Walls:
         self.periodic = tuple(int(a) for a in periodic)
         self._key: tuple | None = None
         self._boxes: list[tuple] = []
+
+    @property
+    def frictional(self) -> bool:
+        """Whether a face that acts is separate with friction (the semi-implicit step then
+        needs its reactions: `SemiImplicitIntegrator._release_reactions`)."""
+        return any(condition == SEPARATE and friction > 0.0 and face // 2 not in self.periodic
+                   for face, (condition, friction) in enumerate(self.faces))
 
     def apply(self, velocity: np.ndarray, origin, dx: float, domain_lo, t: float, dt: float,
               mass: np.ndarray | None = None) -> None:
