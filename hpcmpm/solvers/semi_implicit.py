@@ -45,7 +45,7 @@ from ..kernels.grid import update_velocity
 from ..kernels.implicit import (CONTRACT, HESSIAN_PRODUCT, SCATTER_DIAGONAL, SCATTER_TENSOR,
                                 add_inertia,
                                 add_mass_times, axpy, inverse_diagonal, multiply, project,
-                                release_reactions, xpby)
+                                project_tangents_psd, release_reactions, xpby)
 from ..kernels.transfer import FLIP, MLS, static
 from ..state import VECTOR
 
@@ -55,6 +55,9 @@ log = logging.getLogger(__name__)
 # failed; Armijo's sufficient-decrease constant.
 NEWTON_MAX_ITERATIONS = 50
 LINE_SEARCH_HALVINGS = 30
+# E evaluated at the same velocity on another rank count or in another order differs by
+# round-off relative to its magnitude; a linearized step may not raise E by more.
+ENERGY_ROUNDOFF = 1e-12
 ARMIJO = 1e-4
 # Newton stops when the step's predicted decrease |g . dx| is below this fraction of |E|: E is
 # a sum of per-particle terms of magnitude V0 (mu + lambda) whose round-off exceeds such a
@@ -123,6 +126,7 @@ class SemiImplicitIntegrator:
         self._window: list[tuple[int, int]] = []
         self.negative_curvature = 0
         self.halved_steps = 0
+        self.convexified = 0  # tangents made positive semi-definite (`_convexify`), all ranks
         self._warned_curvature = False
 
     # -- the step ---------------------------------------------------------------------------
@@ -168,15 +172,17 @@ class SemiImplicitIntegrator:
     def diagnostics(self) -> dict[str, float]:
         """CG iterations per step (mean, max) and Newton iterations per step (mean) over the
         steps since the previous call (a run calls it at every frame), the negative
-        curvature stops and the linearized steps halved for admissibility so far. The same on
-        every rank."""
+        curvature stops, the linearized steps halved (admissibility, energy) and the
+        particle tangents made positive semi-definite after such a stop, so far. The same
+        on every rank."""
         window, self._window = self._window, []
         cg = [c for c, _ in window] or [0]
         newton = [n for _, n in window] or [0]
         return {"cg_iterations_mean": float(np.mean(cg)), "cg_iterations_max": float(max(cg)),
                 "newton_iterations_mean": float(np.mean(newton)),
                 "cg_negative_curvature": float(self.negative_curvature),
-                "halved_steps": float(self.halved_steps)}
+                "halved_steps": float(self.halved_steps),
+                "convexified_tangents": float(self.convexified)}
 
     # -- the solve --------------------------------------------------------------------------
     def solve(self, sim, dt: float) -> None:
@@ -233,6 +239,13 @@ class SemiImplicitIntegrator:
             else:
                 floor, eta = (self.tolerance * reference) ** 2, self.tolerance
             iterations, curved = self._cg(sim, dt, "gradient", floor, eta)
+            if curved:
+                # The energy is not convex here: the CG's direction is only trusted up to
+                # where it stopped. Solve again with every tangent made positive
+                # semi-definite (`_convexify`): a descent step of a convex model.
+                self._convexify(sim, dt)
+                more, curved = self._cg(sim, dt, "gradient", floor, eta)
+                iterations += more
             cg_total += iterations
             if not line_search:
                 self._admissible_step(sim, dt)
@@ -474,6 +487,20 @@ class SemiImplicitIntegrator:
                     T[:n, :, c * d + e] = self._dG[:n].reshape(n, d * d)
         self._tangent_ready = True
 
+    def _convexify(self, sim, dt: float) -> None:
+        """Project the tangents of this linearization onto positive semi-definite ones
+        (`project_tangents_psd`; Teran et al. 2005), after a CG stopped on negative
+        curvature: H is then positive definite and the CG that follows converges to a
+        descent direction of E. Only particles with a negative eigenvalue change.
+        Measured on pie_2d: the cream compressed under the crust at t = 0.263 made the
+        CG stop (p.Hp = -1.1e-4 after 158 iterations); the step it returned raised E 25x
+        and sent particles to 500 m/s, collapsing the time step to 1e-6 and inverting
+        the cream 0.06 s later."""
+        self._tangent(sim, dt)
+        with sim.timers("solve_material"):
+            changed = project_tangents_psd(self._T[:sim.particles.n])
+        self.convexified += sim.domain.sum(int(changed))
+
     def _jacobi(self, sim, dt: float) -> None:
         """grid "inverse_diagonal" = 1 / diag(H) on the unknowns (`inverse_diagonal`).
 
@@ -641,31 +668,44 @@ class SemiImplicitIntegrator:
 
     def _admissible_step(self, sim, dt: float) -> None:
         """Linearized mode: v += dv, halved until every material state it makes is
-        admissible (E finite) once the boundary conditions have acted on it. A full step is
-        taken whenever it is admissible, so this changes nothing but the steps where one
-        Newton step would invert a particle (a hard impact at a large dt); those are counted
-        in ``last_step["halvings"]``."""
+        admissible (E finite) once the boundary conditions have acted on it, and E does
+        not rise above its value at the start v0 (up to round-off). The full step is taken
+        whenever it qualifies, which is every step of a convex, resolved solve: then the
+        Newton step of a quadratic model lowers E. The halvings (counted in
+        ``last_step["halvings"]``) act where one Newton step would invert a particle (a
+        hard impact at a large dt) or where the energy is not convex: a CG stopped on
+        negative curvature returns a direction the model trusts too far (measured on
+        pie_2d at t = 0.263: E rose 25x in one step, the crust reached 500 m/s and the
+        time step collapsed to 1e-6; no step before it raised E). CG iterates are descent
+        directions of the model, so a small enough multiple lowers E; when none of
+        LINE_SEARCH_HALVINGS does, the smallest admissible one is taken."""
         f = self._flat
         trial = f["velocity_trial"]
         start = self._v_velocity.copy()
+        e0 = self._energy(sim, dt, "velocity")
+        slack = ENERGY_ROUNDOFF * abs(e0)
         alpha = 1.0
+        fallback = None
         for halving in range(LINE_SEARCH_HALVINGS):
             np.multiply(self._v_x, alpha, out=trial)
             trial += start
             # The walls and colliders act once more on the result (`solve`); check the
             # velocity G2P will see.
             sim.apply_grid_boundaries(sim.grid["velocity_trial"], dt)
-            if math.isfinite(self._energy(sim, dt, "velocity_trial")):
-                self._v_velocity[:] = trial
-                self._alpha = alpha
-                self._halvings = halving
-                self.halved_steps += halving > 0
-                return
+            energy = self._energy(sim, dt, "velocity_trial")
+            if math.isfinite(energy):
+                fallback = (trial.copy(), alpha, halving)
+                if energy <= e0 + slack:
+                    break
             alpha *= 0.5
-        raise SolverFailure(
-            f"no admissible velocity along the linearized step at step {sim.step_index}, "
-            f"t={sim.time:.6g}. Hint: lower simulation.max_dt or simulation.cfl, or use "
-            f"solver.mode = 'newton'.")
+        if fallback is None:
+            raise SolverFailure(
+                f"no admissible velocity along the linearized step at step {sim.step_index}, "
+                f"t={sim.time:.6g}. Hint: lower simulation.max_dt or simulation.cfl, or use "
+                f"solver.mode = 'newton'.")
+        accepted, self._alpha, self._halvings = fallback
+        self._v_velocity[:] = accepted
+        self.halved_steps += self._halvings > 0
 
     def _line_search(self, sim, dt: float, energy: float, steepest: bool) -> float:
         """Backtracking from the full Newton step: halve until E decreases enough (Armijo);
