@@ -104,10 +104,12 @@ def test_signal_writes_a_checkpoint_that_restarts(tmp_path, ranks, sig):
 
 
 def test_wall_clock_checkpoints_are_written_during_the_run(tmp_path):
-    # Every 0.3 s of wall time over a run of a few seconds: at least one checkpoint before the
-    # final one, and only the newest two are kept.
+    # Every 0.05 s of wall time: at least one checkpoint before the final one, and only the
+    # newest two are kept. The run's loop takes about 0.3 s on a quiet 2-core host (5 wall
+    # checkpoints and the final one at this interval); at 0.3 s the first came at step 473
+    # of 507, and a faster moment made the test fail.
     hpcmpm(1, "run", "inputs/disks_2d.toml", "--out", str(tmp_path), "--quiet",
-           "--checkpoint-wall", "0.3", "--set", "output.checkpoint_keep=2")
+           "--checkpoint-wall", "0.05", "--set", "output.checkpoint_keep=2")
     ckpts = sorted(tmp_path.glob("ckpt_*.h5"))
     assert len(ckpts) == 2
     with h5py.File(ckpts[0]) as f:
