@@ -4,7 +4,7 @@ launch helpers the rank-equivalence tests share."""
 from pathlib import Path
 
 from hpcmpm.io.frames import read_frame
-from test_restart import hpcmpm as launch
+from launch import mpi_hpcmpm
 
 
 def last_frame(out: Path, steps: int) -> dict:
@@ -18,7 +18,7 @@ def hpcmpm(ranks: int, *args, timeout: float = 500, past_cfl: bool = False):
     """`hpcmpm *args` on ``ranks`` ranks (a process group killed on timeout). The rank tests
     fix dt so every rank count takes the same steps; unless ``past_cfl``, that dt must stay
     within the CFL bound throughout."""
-    proc = launch(ranks, *args, timeout=timeout)
+    proc = mpi_hpcmpm(ranks, *args, timeout=timeout)
     assert past_cfl or "exceeds the CFL bound" not in proc.stderr
     return proc
 

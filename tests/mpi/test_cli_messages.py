@@ -4,14 +4,11 @@ every rank exits with its code."""
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import pytest
 
-from launch import run_in_group
-
-BIN = Path(sys.executable).parent
+from launch import mpi_hpcmpm
 
 
 @pytest.mark.skipif(bool(os.environ.get("PMI_SIZE") or os.environ.get("HPCMPM_MPI_CHILD")),
@@ -26,8 +23,7 @@ def test_one_message_per_job_on_two_ranks(tmp_path):
                     "--end-time", "-1"], "hpcmpm: error: --end-time: must be > 0.0, got -1.0"),
     }
     for case, (args, expected) in cases.items():
-        proc = run_in_group([str(BIN / "mpiexec"), "-n", "2", str(BIN / "hpcmpm"), *args],
-                            timeout=120, env=dict(os.environ, NUMBA_NUM_THREADS="1"))
+        proc = mpi_hpcmpm(2, *args, timeout=120, check=False)
         assert proc.returncode == 2, (case, proc.stderr)
         told = [l for l in proc.stderr.splitlines() if l.startswith("hpcmpm:")]
         assert told == [expected], (case, proc.stderr)

@@ -8,10 +8,10 @@ its 2-rank run serving the rank and the restart checks)."""
 
 import numpy as np
 from test_rank_independence import STEPS, run
-from test_restart import hpcmpm
 
 from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
+from launch import mpi_hpcmpm as hpcmpm
 
 # Step sizes below each scene's CFL bound at its fastest (the viscous effective speed at the
 # impact); the fields each scene's frames hold (its output.fields and the core ones).

@@ -4,17 +4,14 @@ bitwise equal, damage included (the same broken bonds). integration = "grid" (bo
 through the grid): within 1e-10, the grid's summation order being the only difference, and
 the same damage. A fixed dt makes every rank count take identical steps."""
 
-import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hpcmpm.io.frames import read_frame
-from launch import run_in_group
+from launch import mpi_hpcmpm
 
-BIN = Path(sys.executable).parent
 # Fixed steps below each scene's stable step (checked: no warning in stderr), bitwise or not,
 # and how many: the disk touches the floor at step ~150 and breaks bonds from step ~165.
 SCENES = {"pd_plate_tear_2d": (1.2e-6, True, 100), "ibmpm_disk_impact_2d": (6e-5, False, 250)}
@@ -22,13 +19,10 @@ SCENES = {"pd_plate_tear_2d": (1.2e-6, True, 100), "ibmpm_disk_impact_2d": (6e-5
 
 def run(scene: str, ranks: int, out: Path, dt: float, steps: int) -> dict:
     end = steps * dt
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), "run",
-           f"inputs/{scene}.toml", "--out", str(out), "--quiet", "--force",
-           "--set", f"simulation.dt={dt}", "--set", f"simulation.end_time={end}",
-           "--set", f"output.every={end}"]
-    env = dict(os.environ, NUMBA_NUM_THREADS="1")
-    proc = run_in_group(cmd, timeout=400, env=env)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = mpi_hpcmpm(ranks, "run", f"inputs/{scene}.toml", "--out", str(out), "--quiet",
+                      "--force", "--set", f"simulation.dt={dt}",
+                      "--set", f"simulation.end_time={end}", "--set", f"output.every={end}",
+                      timeout=400)
     assert "exceeds the CFL bound" not in proc.stderr
     data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
     assert attrs["step"] == steps

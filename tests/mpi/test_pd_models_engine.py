@@ -6,8 +6,6 @@ bond plasticity, crack planes gathered over ranks, two-time integration, on the 
 1e-10 with the same broken bonds. And a restart of ibmpm_cream_pie_2d (viscoelastic_lps: the
 per-bond stored forces checkpoint with the bonds) bitwise equal to the uninterrupted run."""
 
-import os
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,10 +13,8 @@ import pytest
 
 from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
-from launch import run_in_group
+from launch import mpi_hpcmpm
 
-BIN = Path(sys.executable).parent
-ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
 STEPS = 60
 # scene: (fixed dt below the scene's stable step, bitwise, reductions)
 SCENES = {
@@ -31,9 +27,7 @@ SCENES = {
 
 
 def hpcmpm(ranks: int, *args):
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args, "--quiet"]
-    proc = run_in_group(cmd, timeout=600, env=ENV)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = mpi_hpcmpm(ranks, *args, "--quiet", timeout=600)
     assert "exceeds the CFL bound" not in proc.stderr
     return proc
 

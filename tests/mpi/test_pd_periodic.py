@@ -2,16 +2,11 @@
 constant velocity through several wraps with no internal force (its bonds wrap with it), and
 1, 2 and 4 ranks agree bitwise."""
 
-import os
-import sys
-from pathlib import Path
-
 import numpy as np
 
 from hpcmpm.io.frames import read_frame
-from launch import run_in_group
+from launch import mpi_hpcmpm
 
-BIN = Path(sys.executable).parent
 SCENE = """
 [simulation]
 dim = 2
@@ -54,11 +49,7 @@ def test_pd_strip_across_a_periodic_axis(tmp_path):
     frames = {}
     for ranks in (1, 2, 4):
         out = tmp_path / f"n{ranks}"
-        cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), "run", str(scene),
-               "--out", str(out), "--quiet", "--force"]
-        proc = run_in_group(cmd, timeout=300,
-                            env=dict(os.environ, NUMBA_NUM_THREADS="1"))
-        assert proc.returncode == 0, proc.stderr[-3000:]
+        mpi_hpcmpm(ranks, "run", str(scene), "--out", str(out), "--quiet", "--force")
         frames[ranks], attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
         assert attrs["step"] == 200
     ref = frames[1]

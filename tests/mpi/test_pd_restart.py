@@ -3,8 +3,6 @@ restarted on the same or another rank count reaches step 100 bitwise equal to th
 uninterrupted run (integration = "pd" does not depend on the decomposition), broken bonds
 included (damage, and positions that a lost bond would change)."""
 
-import os
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,18 +10,10 @@ import pytest
 
 from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
-from launch import run_in_group
+from launch import mpi_hpcmpm as hpcmpm
 
-BIN = Path(sys.executable).parent
 DT = 1.2e-6
-ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
 FIXED = ["--set", f"simulation.dt={DT}", "--set", f"output.every={50 * DT}"]
-
-
-def hpcmpm(ranks: int, *args):
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    proc = run_in_group(cmd, timeout=300, env=ENV)
-    assert proc.returncode == 0, proc.stderr[-3000:]
 
 
 def last_frame(out: Path):

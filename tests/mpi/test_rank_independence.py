@@ -3,17 +3,14 @@ the 1-rank result within 1e-10 relative after 200 steps, particles compared by i
 mass and momentum conserved. A fixed dt makes every rank count take identical steps, so the
 only differences are the summation order of ghost contributions (round-off)."""
 
-import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hpcmpm.io.frames import read_frame
-from launch import run_in_group
+from launch import mpi_hpcmpm
 
-BIN = Path(sys.executable).parent
 # Step sizes below each scene's CFL bound (checked: no "exceeds the CFL bound" warning).
 SCENES = {"disks_2d": 5e-3, "jelly_cube_3d": 1.2e-3, "sponge_twist_3d": 1.5e-3,
           "dam_break_2d": 2.5e-4}
@@ -29,15 +26,12 @@ STEPS = 200
 
 def run(scene: str, ranks: int, out: Path, dt: float) -> dict:
     end = STEPS * dt
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), "run",
-           f"inputs/{scene}.toml", "--out", str(out), "--quiet", "--force",
-           "--set", f"simulation.dt={dt}", "--set", f"simulation.end_time={end}",
-           "--set", f"output.every={end}", "--debug-checks"]
+    args = ["run", f"inputs/{scene}.toml", "--out", str(out), "--quiet", "--force",
+            "--set", f"simulation.dt={dt}", "--set", f"simulation.end_time={end}",
+            "--set", f"output.every={end}", "--debug-checks"]
     for override in OVERRIDES.get(scene, []):
-        cmd += ["--set", override]
-    env = dict(os.environ, NUMBA_NUM_THREADS="1")
-    proc = run_in_group(cmd, timeout=400, env=env)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+        args += ["--set", override]
+    proc = mpi_hpcmpm(ranks, *args, timeout=400)
     assert "exceeds the CFL bound" not in proc.stderr
     frames = sorted(out.glob("frame_*.h5"))
     data, attrs = read_frame(frames[-1])

@@ -2,18 +2,13 @@
 one rank: the PNGs are pixel for pixel equal (one colour scale reduced over the ranks), and
 rank 0's movie holds every frame."""
 
-import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from hpcmpm.cli import main
 from hpcmpm.viz.movie import movie_frame_count
-from launch import run_in_group
-
-BIN = Path(sys.executable).parent
-ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
+from launch import mpi_hpcmpm
 
 
 def pixels(path: Path) -> np.ndarray:
@@ -30,9 +25,7 @@ def test_two_ranks_render_what_one_rank_renders(tmp_path):
                  "--end-time", "0.12", "--set", "simulation.dx=0.1"]) == 0
     args = ["--size", "200x150", "--movie", "gif", "--quiet"]
     assert main(["render", str(run), "--out", str(tmp_path / "one"), *args]) == 0
-    proc = run_in_group([str(BIN / "mpiexec"), "-n", "2", str(BIN / "hpcmpm"), "render",
-                         str(run), "--out", str(tmp_path / "two"), *args], timeout=240, env=ENV)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = mpi_hpcmpm(2, "render", str(run), "--out", str(tmp_path / "two"), *args, timeout=240)
     assert "2 rank(s)" in proc.stdout and "movie: " in proc.stdout
     one = sorted((tmp_path / "one").glob("render_*.png"))
     two = sorted((tmp_path / "two").glob("render_*.png"))

@@ -1,10 +1,8 @@
 """Checkpoint/restart through the CLI: same rank count bit for bit, another rank count within
 1e-10, SIGTERM writes a usable checkpoint and exits with the documented code."""
 
-import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -15,19 +13,10 @@ import pytest
 from hpcmpm.errors import EXIT_CHECKPOINTED_ON_SIGNAL
 from hpcmpm.io.checkpoint import latest_checkpoint
 from hpcmpm.io.frames import read_frame
-from launch import kill_group, run_in_group
+from launch import ONE_THREAD, hpcmpm_cmd, kill_group, mpi_hpcmpm as hpcmpm
 
-BIN = Path(sys.executable).parent
 DT = 5e-3
-ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
 FIXED = ["--set", f"simulation.dt={DT}", "--set", f"output.every={50 * DT}"]
-
-
-def hpcmpm(ranks: int, *args, timeout=300):
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    proc = run_in_group(cmd, timeout=timeout, env=ENV)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return proc
 
 
 def final_frame(out: Path):
@@ -73,10 +62,10 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path, uninterrupted, first
 
 @pytest.mark.parametrize("ranks,sig", [(1, signal.SIGTERM), (2, signal.SIGUSR1)])
 def test_signal_writes_a_checkpoint_that_restarts(tmp_path, ranks, sig):
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), "run",
-           "inputs/disks_2d.toml", "--out", str(tmp_path), "--quiet", "--end-time", "1000"]
+    cmd = hpcmpm_cmd(ranks, "run", "inputs/disks_2d.toml", "--out", str(tmp_path), "--quiet",
+                     "--end-time", "1000")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=ENV, start_new_session=True)
+                            env=ONE_THREAD, start_new_session=True)
     try:
         deadline = time.time() + 120
         while not list(tmp_path.glob("frame_000001.h5")) and time.time() < deadline:

@@ -6,18 +6,12 @@ toothpaste_3d (a frictional box collider and walls); the
 full sizes (50 and 200 steps) are
 scripts/study_semi_implicit_ranks.py. A restart on the same rank count is bitwise."""
 
-import os
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from hpcmpm.io.frames import read_frame
-from launch import run_in_group
+from launch import mpi_hpcmpm
 
-BIN = Path(sys.executable).parent
-ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
 # scene, dt, steps, overrides: small enough for CI (each mpiexec launch costs seconds).
 CASES = {
     "sponge": ("inputs/sponge_twist_ob_3d.toml", 0.01, 8, ["simulation.dx=0.05"]),
@@ -38,12 +32,6 @@ CASES = {
 FIELDS = ("x", "v", "b", "J")
 
 
-def hpcmpm(ranks, *args):
-    cmd = [str(BIN / "mpiexec"), "-n", str(ranks), str(BIN / "hpcmpm"), *args]
-    proc = run_in_group(cmd, timeout=400, env=ENV)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-
-
 def final_frame(out):
     return read_frame(sorted(out.glob("frame_*.h5"))[-1])
 
@@ -62,7 +50,7 @@ def runs(request, tmp_path_factory):
                   f"output.every={end / 2}", "solver.tolerance=1e-12",
                   'output.fields=["b", "J"]', *extra]:
             args += ["--set", s]
-        hpcmpm(ranks, *args)
+        mpi_hpcmpm(ranks, *args, timeout=400)
         data, attrs = final_frame(folder)
         assert attrs["step"] == steps
         out[ranks] = (folder, data, attrs)
@@ -92,7 +80,8 @@ def test_restart_is_bitwise_on_the_same_rank_count(runs, tmp_path):
     ckpts = sorted(folder.glob("ckpt_*.h5"))
     half = [c for c in ckpts if c.name == f"ckpt_{steps // 2:09d}.h5"]
     assert half, [c.name for c in ckpts]
-    hpcmpm(2, "restart", str(half[0]), "--out", str(tmp_path / "again"), "--quiet")
+    mpi_hpcmpm(2, "restart", str(half[0]), "--out", str(tmp_path / "again"), "--quiet",
+               timeout=400)
     got, attrs = final_frame(tmp_path / "again")
     assert attrs["step"] == steps
     for name in FIELDS:

@@ -11,8 +11,8 @@ import numpy as np
 
 from hpcmpm.runner import simulate
 from hpcmpm.scene import load_scene
+from launch import mpi_hpcmpm as hpcmpm
 from scene_runs import last_frame, run_scene
-from test_restart import hpcmpm
 
 SCENE = "inputs/watermelon_3d.toml"
 DT, STEPS = 2e-6, 100
