@@ -19,9 +19,16 @@ explicit predictor v* (Stomakhin 2013), "newton" iterates with a backtracking li
 (+inf where a material's state would be inadmissible) until |g| <= newton_tolerance |M v*|
 (Gast 2015; 000 §5.7). Each Newton step solves P H P dv = -P g by preconditioned conjugate
 gradients (Jacobi: the exact diagonal of H, or none) to a relative tolerance; P is the
-constraint mask. Distributed: the CG vectors live on owned nodes; H u is "fill ghosts of u ->
-particle contraction -> material Hessian -> scatter -> sum ghosts to owners"; the dot products
-of an iteration travel in one allreduce (Chronopoulos-Gear CG); no grid vector is gathered.
+constraint mask. A CG that stops on negative curvature (a non-convex energy) is run again with
+every particle tangent projected onto a positive semi-definite one (`_convexify`), and the
+linearized step is halved where it would make a state inadmissible or raise E. Walls and
+colliders with Coulomb friction act after the solve on the velocity each contact node would
+have without its reaction force, so friction takes mu times the normal impulse the contact
+carried, as in the explicit step (`_release_reactions`).
+
+Distributed: the CG vectors live on owned nodes; H u is "fill ghosts of u -> particle
+contraction -> material Hessian -> scatter -> sum ghosts to owners"; the dot products of an
+iteration travel in one allreduce (Chronopoulos-Gear CG); no grid vector is gathered.
 
 Time step: advection only (000 §5.5 removes the elastic and viscous limits), the largest dt
 with (|v|max + |g| dt) dt <= cfl dx, where |v|max includes kinematic colliders and prescribed
