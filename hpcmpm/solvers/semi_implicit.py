@@ -428,9 +428,8 @@ class SemiImplicitIntegrator:
             np.add(self._g0, f["cg_u"], out=self._v_grad)
         else:
             self._full_gradient(sim, dt)
-        f = self._flat
-        solved = self._v_velocity.copy()
-        trial = f["velocity_trial"]
+        solved = self._v_velocity
+        trial = self._flat["velocity_trial"]
         with sim.timers("solve_vector"):
             trial[:] = solved
             release_reactions(trial, self._v_grad, self._mass, self._free,
@@ -438,16 +437,9 @@ class SemiImplicitIntegrator:
             sim.apply_grid_boundaries(sim.grid["velocity_trial"], dt)
             change = trial - solved
         # Friction stops contact nodes the solve let slide: keep the step admissible, as
-        # `_admissible_step` does, by halving that change where it would invert a particle.
-        alpha = 1.0
-        for halving in range(LINE_SEARCH_HALVINGS):
-            np.multiply(change, alpha, out=trial)
-            trial += solved
-            if math.isfinite(self._energy(sim, dt, "velocity_trial")):
-                self._v_velocity[:] = trial
-                return
-            alpha *= 0.5
-        self._v_velocity[:] = solved
+        # `_admissible_step` does, by halving that change where it would invert a particle
+        # (the solved velocity stays if no fraction of it is admissible).
+        self._backtrack(sim, dt, solved, change)
 
     def _hessian(self, sim, dt: float, src: str, dst: str, projected: bool = True) -> None:
         """grid[dst] = P H P grid[src] at the L of the last `_gradient`: fill the ghosts of
@@ -503,8 +495,8 @@ class SemiImplicitIntegrator:
         descent direction of E. Only particles with a negative eigenvalue change.
         Measured on pie_2d: the cream compressed under the crust at t = 0.263 made the
         CG stop (p.Hp = -1.1e-4 after 158 iterations); the step it returned raised E 25x
-        and sent particles to 500 m/s, collapsing the time step to 1e-6 and inverting
-        the cream 0.06 s later."""
+        and sent particles to 500 m/s, collapsing the time step to 1e-6; the run stopped
+        on an inadmissible state 0.008 s later."""
         self._tangent(sim, dt)
         with sim.timers("solve_material"):
             changed = project_tangents_psd(self._T[:sim.particles.n])
@@ -688,33 +680,47 @@ class SemiImplicitIntegrator:
         time step collapsed to 1e-6; no step before it raised E). CG iterates are descent
         directions of the model, so a small enough multiple lowers E; when none of
         LINE_SEARCH_HALVINGS does, the smallest admissible one is taken."""
-        f = self._flat
-        trial = f["velocity_trial"]
-        start = self._v_velocity.copy()
+        start = self._v_velocity  # read by `_backtrack` before it writes the result
         e0 = self._energy(sim, dt, "velocity")
-        slack = ENERGY_ROUNDOFF * abs(e0)
-        alpha = 1.0
-        fallback = None
-        for halving in range(LINE_SEARCH_HALVINGS):
-            np.multiply(self._v_x, alpha, out=trial)
-            trial += start
-            # The walls and colliders act once more on the result (`solve`); check the
-            # velocity G2P will see.
-            sim.apply_grid_boundaries(sim.grid["velocity_trial"], dt)
-            energy = self._energy(sim, dt, "velocity_trial")
-            if math.isfinite(energy):
-                fallback = (trial.copy(), alpha, halving)
-                if energy <= e0 + slack:
-                    break
-            alpha *= 0.5
-        if fallback is None:
+        # The walls and colliders act once more on the result (`solve`); check the velocity
+        # G2P will see.
+        taken = self._backtrack(sim, dt, start, self._v_x, e0 + ENERGY_ROUNDOFF * abs(e0),
+                                boundaries=True)
+        if taken is None:
             raise SolverFailure(
                 f"no admissible velocity along the linearized step at step {sim.step_index}, "
                 f"t={sim.time:.6g}. Hint: lower simulation.max_dt or simulation.cfl, or use "
                 f"solver.mode = 'newton'.")
-        accepted, self._alpha, self._halvings = fallback
-        self._v_velocity[:] = accepted
+        self._alpha, self._halvings = taken
         self.halved_steps += self._halvings > 0
+
+    def _backtrack(self, sim, dt: float, start: np.ndarray, change: np.ndarray,
+                   bound: float = math.inf, boundaries: bool = False):
+        """grid "velocity" = start + alpha change for the first alpha = 1, 1/2, ... (at most
+        LINE_SEARCH_HALVINGS) whose E is finite and at most ``bound``, else for the smallest
+        one with E finite; with ``boundaries`` the walls and colliders act on each trial
+        first. ``start`` may be grid "velocity" itself: it is written only once the choice is
+        made. Returns (alpha, halvings), or None (velocity untouched) when no trial was
+        admissible."""
+        trial = self._flat["velocity_trial"]
+        alpha = 1.0
+        fallback = None
+        for halving in range(LINE_SEARCH_HALVINGS):
+            np.multiply(change, alpha, out=trial)
+            trial += start
+            if boundaries:
+                sim.apply_grid_boundaries(sim.grid["velocity_trial"], dt)
+            energy = self._energy(sim, dt, "velocity_trial")
+            if math.isfinite(energy):
+                if energy <= bound:
+                    self._v_velocity[:] = trial
+                    return alpha, halving
+                fallback = (trial.copy(), alpha, halving)
+            alpha *= 0.5
+        if fallback is None:
+            return None
+        self._v_velocity[:] = fallback[0]
+        return fallback[1:]
 
     def _line_search(self, sim, dt: float, energy: float, steepest: bool) -> float:
         """Backtracking from the full Newton step: halve until E decreases enough (Armijo);
