@@ -7,6 +7,8 @@ one Hessian-vector product against one explicit step's transfers.
     python scripts/bench_semi_implicit.py cg                   # Jacobi against none
     python scripts/bench_semi_implicit.py hessian              # H u against P2G + G2P
     python scripts/bench_semi_implicit.py all --smoke          # tiny, for CI
+    python scripts/bench_semi_implicit.py steps --scene toothpaste_3d --dt 1e-3 5e-4 2.5e-4 \
+        --transfer apic pic --set simulation.dx=0.025  # the observable against the step
 
 Each measurement runs in this process after a warm-up run that compiles every kernel (the
 numba cache makes it short the second time), one rank. ``speedup``: the scene to
@@ -18,7 +20,10 @@ mean wall time of `SemiImplicitIntegrator._hessian` (fill ghosts, the fused cont
 tangent / scatter loop, sum to owners, mass term, mask) over ``--repeats`` calls, and of the
 tangents it uses (`_tangent`: d^2 material Hessian products, once per linearization), against
 the mean
-p2g + g2p time of an explicit step of the same scene and state. Writes
+p2g + g2p time of an explicit step of the same scene and state. ``steps`` (not in ``all``):
+the observable of both integrators at each fixed ``--dt`` and each ``--transfer``, to the same
+end time, so the observable's own dependence on the step (each P2G/G2P transfer dissipates,
+whatever the integrator) is measured beside the semi-implicit step's. Writes
 bench_results/semi_implicit.json. Timings on a shared, loaded host are noise: run on a quiet
 machine before quoting them.
 """
@@ -36,6 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from hpcmpm.errors import InstabilityError  # noqa: E402
 from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain  # noqa: E402
 from hpcmpm.scene import load_scene  # noqa: E402
 from hpcmpm.simulation import Simulation  # noqa: E402
@@ -71,8 +77,9 @@ def build(scene_name, overrides):
     return sim
 
 
-def run(scene_name, end_time, overrides=()):
-    """(wall seconds of the loop, steps, simulation, per-step CG iterations)."""
+def run(scene_name, end_time, overrides=(), record=None):
+    """(wall seconds of the loop, steps, simulation, per-step CG iterations); ``record`` (a
+    dict) gets ``above_bound``: a fixed dt was past the integrator's stable step."""
     sim = build(scene_name, [f"simulation.end_time={end_time}", f"output.every={end_time}",
                              *overrides])
     x0 = centre_of_mass(sim, 0)
@@ -83,7 +90,10 @@ def run(scene_name, end_time, overrides=()):
 
     options = RunOptions(out_dir=Path("."), end_time=end_time, quiet=True)
     start = time.perf_counter()
-    Runner(sim, None, options, observer=observe).run()
+    runner = Runner(sim, None, options, observer=observe)
+    runner.run()
+    if record is not None:
+        record["above_bound"] = runner.dt_warned
     return time.perf_counter() - start, sim.step_index, sim, cg, x0
 
 
@@ -133,6 +143,37 @@ def cg(results, scenes, end_times, smoke):
         if "cg_mean" in row["none"] and "cg_mean" in row["jacobi"]:
             row["ratio_mean"] = row["none"]["cg_mean"] / max(row["jacobi"]["cg_mean"], 1e-300)
         results.setdefault("cg", {})[name] = row
+
+
+def steps(results, scenes, end_times, dts, transfers, sets):
+    """The observable of each integrator and transfer at each fixed step, same end time."""
+    for name in scenes:
+        end = end_times[name]
+        label, observable = OBSERVABLES[name]
+        rows = []
+        for transfer in transfers:
+            for integrator in ("explicit", "semi_implicit"):
+                for dt in dts:
+                    overrides = [f'simulation.integrator="{integrator}"',
+                                 f'simulation.transfer="{transfer}"', f"simulation.dt={dt}",
+                                 *sets]
+                    flags = {}
+                    try:
+                        wall, n, sim, _, x0 = run(name, end, overrides, flags)
+                    except InstabilityError as failure:  # explicit past its stable step
+                        rows.append({"transfer": transfer, "integrator": integrator,
+                                     "dt": dt, "failed": str(failure).splitlines()[0]})
+                        print(f"steps {name} {transfer} {integrator} dt = {dt:g}: unstable",
+                              flush=True)
+                        continue
+                    value = float(observable(sim, x0))
+                    rows.append({"transfer": transfer, "integrator": integrator, "dt": dt,
+                                 "steps": n, "observable": value, "wall_s": wall, **flags})
+                    past = " (dt past the stable step)" if flags["above_bound"] else ""
+                    print(f"steps {name} {transfer} {integrator} dt = {dt:g}: {n} steps, "
+                          f"{label} = {value:.6g} ({wall:.1f} s){past}", flush=True)
+        results.setdefault("steps", {})[name] = {"end_time": end, "observable": label,
+                                                 "sets": list(sets), "runs": rows}
 
 
 def hessian(results, scenes, repeats, smoke):
@@ -186,11 +227,17 @@ def hessian(results, scenes, repeats, smoke):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", nargs="*", default=["all"],
-                        choices=["speedup", "cg", "hessian", "all"])
+                        choices=["speedup", "cg", "hessian", "steps", "all"])
     parser.add_argument("--scene", action="append", help="limit to these scenes")
     parser.add_argument("--end-time", type=float, help="simulated time of the speedup runs")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--smoke", action="store_true", help="tiny sizes and times (CI)")
+    parser.add_argument("--dt", type=float, nargs="+", default=[1e-3, 5e-4, 2.5e-4],
+                        help="fixed steps of the `steps` study")
+    parser.add_argument("--transfer", nargs="+", default=["apic"],
+                        help="transfers of the `steps` study")
+    parser.add_argument("--set", action="append", default=[], dest="sets",
+                        help="scene overrides of the `steps` study (KEY=VALUE)")
     args = parser.parse_args(argv)
     what = {"speedup", "cg", "hessian"} if "all" in args.what else set(args.what)
     end_times = dict(END_TIMES)
@@ -203,6 +250,10 @@ def main(argv=None):
         speedup(results, args.scene or SCENES, end_times, args.smoke)
     if "cg" in what:
         cg(results, args.scene or CG_SCENES, end_times, args.smoke)
+    if "steps" in args.what:
+        sets = args.sets + (["simulation.dx=0.05"] if args.smoke else [])
+        steps(results, args.scene or ["toothpaste_3d"], end_times,
+              args.dt[:1] if args.smoke else args.dt, args.transfer, sets)
     if "hessian" in what:
         hessian(results, args.scene or SCENES, 3 if args.smoke else args.repeats, args.smoke)
     out = ROOT / "bench_results"

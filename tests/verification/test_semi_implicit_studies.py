@@ -45,3 +45,18 @@ def test_semi_implicit_benchmark_smoke():
     for name, row in results["hessian"].items():
         assert row["hessian_product_s"] > 0.0 and row["tangent_s"] > 0.0, name
         assert math.isfinite(row["ratio"]) and math.isfinite(row["tangent_ratio"]), name
+
+
+def test_step_dependence_study_smoke():
+    """`bench_semi_implicit.py steps` (the observable against the fixed step, BENCHMARKS.md)
+    at its smoke size: both integrators run, at the step asked for, to a finite observable."""
+    import math
+
+    import bench_semi_implicit
+
+    results = bench_semi_implicit.main(["steps", "--smoke", "--dt", "5e-4"])
+    runs = results["steps"]["toothpaste_3d"]["runs"]
+    assert {r["integrator"] for r in runs} == {"explicit", "semi_implicit"}
+    for r in runs:
+        assert r["steps"] == 2 and math.isfinite(r["observable"]), r
+        assert not r["above_bound"], r
