@@ -103,6 +103,18 @@ def crack_angles(x0, phi, dx, threshold=0.35, r_min=0.005, r_max=0.035):
     return out
 
 
+def extrapolated_angle(dxs, angles) -> float:
+    """The angle at dx -> 0 of a least-squares line through (dx, angle): the measured angles
+    rise about linearly as the spacing (and with it the horizon) shrinks. NaN with fewer
+    than two finite angles."""
+    dxs, angles = np.asarray(dxs, float), np.asarray(angles, float)
+    ok = np.isfinite(angles)
+    if ok.sum() < 2 or np.ptp(dxs[ok]) == 0.0:
+        return math.nan
+    slope, intercept = np.polyfit(dxs[ok], angles[ok], 1)
+    return float(intercept)
+
+
 def save_png(path, x0, phi, dx, title):
     import matplotlib
     matplotlib.use("Agg")
@@ -156,6 +168,10 @@ def main(argv=None) -> int:
         if args.png and dx == min(dxs):
             save_png(args.png, body.pts.x0[: body.pts.n_owned], phi, dx,
                      f"dx = {dx * 1e3:g} mm: {info['mean_angle_deg']:.1f} deg")
+    if len(rows) > 1:
+        limit = extrapolated_angle([r["dx"] for r in rows],
+                                   [r["mean_angle_deg"] for r in rows])
+        print(f"mean angle extrapolated linearly in dx to dx -> 0: {limit:.1f} deg", flush=True)
     path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(rows, indent=2))

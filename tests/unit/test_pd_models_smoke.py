@@ -48,3 +48,13 @@ def test_study_kalthoff_winkler_smoke(tmp_path):
     (row,) = json.loads(out.read_text())
     assert row["steps"] > 0 and row["particles"] == 800
     assert all(math.isfinite(row[k]) for k in ("s0", "dt", "wall_s"))
+
+
+def test_kalthoff_winkler_angle_extrapolation():
+    """The dx -> 0 limit the study prints: exact for angles on a line, NaN without two."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    from study_kalthoff_winkler import extrapolated_angle
+
+    assert math.isclose(extrapolated_angle([1e-3, 0.5e-3], [60.0, 65.0]), 70.0, rel_tol=1e-12)
+    assert math.isnan(extrapolated_angle([1e-3, 0.5e-3], [60.0, math.nan]))
+
