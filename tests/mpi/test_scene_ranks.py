@@ -14,7 +14,7 @@ iteration earlier on another rank count no longer moves the result beyond round-
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +34,7 @@ class Case:
     sets: tuple = ()
     ranks: tuple = (1, 2, 4)      # (2,): the rank comparison lives elsewhere, restart only
     bitwise: bool = False         # pure PD: no grid sums, so bit-identical on any rank count
-    active: tuple = field(default=())   # (field, minimum of its largest value) at the end
+    active: tuple = ()            # (field, floor of its largest value at the end), ...
 
 
 CASES = {
