@@ -214,8 +214,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Options whose value may begin with "-" without being a number (`--frames -3:`, the last
+# three frames), which argparse would otherwise take for an option and refuse.
+DASH_VALUE_OPTIONS = ("--frames",)
+
+
+def _attach_dash_values(argv: list[str]) -> list[str]:
+    """``--frames -3:`` -> ``--frames=-3:`` (the same for every DASH_VALUE_OPTIONS)."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] in DASH_VALUE_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-"):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    argv = _attach_dash_values(list(sys.argv[1:] if argv is None else argv))
     args, unknown = parser.parse_known_args(argv)
     if unknown:
         # argparse.REMAINDER does not take a leading option (`hpcmpm bench --help`), so the

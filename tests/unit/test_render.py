@@ -261,6 +261,18 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     assert code == 2 and "no such run folder" in err
 
 
+def test_frames_from_the_end_on_the_command_line(tmp_path, capsys):
+    """`--frames -2:` (a value that starts with "-" and is no number) reaches the renderer
+    instead of argparse's "expected one argument"."""
+    x = lattice((0.2, 0.5), (0.6, 0.9), 0.05)
+    run = write_known_run(tmp_path / "run", SCENE_2D, x, times=(0.0, 0.1, 0.2))
+    code, err = hpcmpm(capsys, "render", str(run), "--quiet", "--movie", "none",
+                       "--size", "120x90", "--frames", "-2:")
+    assert code == 0, err
+    assert sorted(p.name for p in (run / "render").glob("render_*.png")) == \
+        ["render_000001.png", "render_000002.png"]
+
+
 def test_plot_reproduces_the_energy_series(tmp_path, capsys):
     run = tmp_path / "disks"
     code, err = hpcmpm(capsys, "run", "inputs/disks_2d.toml", "--out", str(run), "--quiet",
