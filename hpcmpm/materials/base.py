@@ -199,6 +199,8 @@ class Material:
     ``implicit_energy(fields, L, dt) -> float``, ``implicit_gradient(fields, L, dt, G)``
     (G_p = de_p/dL_p) and ``implicit_hessian(fields, L, dt, dL, dG)`` (dG_p = D^2 e_p[dL_p]);
     a material without them (``implicit = False``) runs with the explicit integrator only.
+    ``implicit_tangent`` builds the whole d^2 x d^2 tangent from those products; a model may
+    override it with one pass that shares its per-particle work between the directions.
     """
 
     name: ClassVar[str] = ""
@@ -304,6 +306,17 @@ class Material:
         raise NotImplementedError
 
     implicit: ClassVar[bool] = False
+
+    def implicit_tangent(self, fields, L, dt: float, dL, dG, T) -> None:
+        """Writes T (n, d^2, d^2), T_p[ab, ce] = d^2 e_p / dL_ab dL_ce at L_p, one
+        `implicit_hessian` product per unit direction E_ce (dL, dG: (n, d, d) scratch)."""
+        n, d = L.shape[0], L.shape[-1]
+        for c in range(d):
+            for e in range(d):
+                dL[:] = 0.0
+                dL[:, c, e] = 1.0
+                self.implicit_hessian(fields, L, dt, dL, dG)
+                T[:, :, c * d + e] = dG.reshape(n, d * d)
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v!r}"

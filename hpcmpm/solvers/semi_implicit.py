@@ -467,25 +467,21 @@ class SemiImplicitIntegrator:
                 self._project(dst)
 
     def _tangent(self, sim, dt: float) -> None:
-        """T_p[ab, ce] = d^2 e_p / dL_ab dL_ce at the L of the last `_gradient`, from d^2
-        material Hessian products with the unit directions E_ce (once per linearization;
-        a CG solve then applies H many times at the same L). Exact: D^2 e_p[dL] is linear
-        in dL, so T_p : dL is the material's product up to round-off (tested); a material's
-        product recomputes its plastic return and b_hat(L) from L each time, where T_p is
-        d^4 multiply-adds. Memory: d^4 doubles per particle (128 B in 2D, 648 B in 3D)."""
+        """T_p[ab, ce] = d^2 e_p / dL_ab dL_ce at the L of the last `_gradient`, from each
+        material's `implicit_tangent`: d^2 Hessian products with the unit directions E_ce,
+        or one pass for the b_E models (once per linearization; a CG solve then applies H
+        many times at the same L). Exact: D^2 e_p[dL] is linear in dL, so T_p : dL is the
+        material's product up to round-off (tested); a material's product recomputes its
+        plastic return and b_hat(L) from L each time, where T_p is d^4 multiply-adds.
+        Memory: d^4 doubles per particle (128 B in 2D, 648 B in 3D)."""
         if self._tangent_ready:
             return
-        d, n = sim.dim, sim.particles.n
         T = self._T
         with sim.timers("solve_material"):
-            for c in range(d):
-                for e in range(d):
-                    self._dL[:n] = 0.0
-                    self._dL[:n, c, e] = 1.0
-                    for material, fields, start, stop in self._slices:
-                        material.implicit_hessian(fields, self._L[start:stop], dt,
-                                                  self._dL[start:stop], self._dG[start:stop])
-                    T[:n, :, c * d + e] = self._dG[:n].reshape(n, d * d)
+            for material, fields, start, stop in self._slices:
+                material.implicit_tangent(fields, self._L[start:stop], dt,
+                                          self._dL[start:stop], self._dG[start:stop],
+                                          T[start:stop])
         self._tangent_ready = True
 
     def _convexify(self, sim, dt: float) -> None:
