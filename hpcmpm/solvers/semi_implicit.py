@@ -728,11 +728,13 @@ class SemiImplicitIntegrator:
         direction = f["cg_x"]
         if steepest:  # negative curvature at once: the preconditioned gradient direction
             self._precondition("gradient", "cg_x")
-        (slope,) = self._dots(sim, [("cg_x", "gradient")])
-        slope = -slope  # "gradient" holds -P g now: slope = g . dx
+        # The slope g . dx ("gradient" holds -P g now) and sum m |dx|^2 in one allreduce.
+        pairs, weights = [("cg_x", "gradient"), ("cg_x", "cg_x")], (0, 1)
+        slope, kinetic = self._dots(sim, pairs, weights)
+        slope = -slope
         if not slope < 0.0:
             direction[:] = f["gradient"]
-            (slope,) = self._dots(sim, [("cg_x", "gradient")])
+            slope, kinetic = self._dots(sim, pairs, weights)
             slope = -slope
         trial = f["velocity_trial"]
         # Start no further than a mass-weighted RMS change of dx/dt in the node velocities
@@ -741,7 +743,6 @@ class SemiImplicitIntegrator:
         # a node of negligible mass may carry a direction of hundreds of m/s (measured: 635
         # m/s at a node of 2e-9 kg beside a median of 0.25 m/s in an impact), and capping by
         # the largest node held every Newton step to 1.4 % of its length.
-        (kinetic,) = self._dots(sim, [("cg_x", "cg_x")], (1,))
         rms = math.sqrt(kinetic / self._total_mass) if self._total_mass > 0.0 else 0.0
         alpha = min(1.0, sim.dx / (dt * rms)) if rms > 0.0 else 1.0
         unresolved = -slope <= ENERGY_RESOLUTION * abs(energy)
