@@ -1,16 +1,21 @@
 """A scene run through the CLI on N ranks with ``--set`` overrides, and its last frame: the
 launch helpers the rank-equivalence tests share."""
 
+from __future__ import annotations
+
 from pathlib import Path
 
 from hpcmpm.io.frames import read_frame
 from launch import mpi_hpcmpm
 
 
-def last_frame(out: Path, steps: int) -> dict:
-    """The fields of the last frame in ``out``, which must be at step ``steps``."""
+def last_frame(out: Path, steps: int, ranks: int | None = None) -> dict:
+    """The fields of the last frame in ``out``, which must be at step ``steps`` and, given
+    ``ranks``, written by one world of that many ranks (not N separate 1-rank runs)."""
     data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
     assert attrs["step"] == steps
+    if ranks is not None:
+        assert attrs["n_ranks"] == ranks
     return data
 
 
@@ -31,4 +36,4 @@ def run_scene(ranks: int, scene: str, sets, out: Path, steps: int, *extra,
     for s in sets:
         args += ["--set", s]
     hpcmpm(ranks, *args, past_cfl=past_cfl)
-    return last_frame(out, steps)
+    return last_frame(out, steps, ranks)

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hpcmpm.io.frames import read_frame
 from launch import mpi_hpcmpm
+from scene_runs import last_frame, run_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 SEMI = ("solver.tolerance=1e-12",)
@@ -92,82 +92,59 @@ CASES = {
     "ibmpm_disk_impact_2d": Case(6e-5, 60, ranks=(2,)),
 }
 
-# Scenes whose rank comparison or restart is a dedicated test elsewhere: (file, test).
+# Dedicated tests elsewhere in tests/mpi: (file, test) -> (what it checks: "ranks" for 1, 2
+# and 4 ranks compared, "restart" for a restart equal to the run; the scenes it runs).
+RANKS, RESTART, BOTH = ("ranks",), ("restart",), ("ranks", "restart")
 ELSEWHERE = {
-    "ranks": {
-        "disks_2d": ("test_rank_independence.py", "test_two_and_four_ranks_match_one_rank"),
-        "dam_break_2d": ("test_rank_independence.py",
-                         "test_two_and_four_ranks_match_one_rank"),
-        "jelly_cube_3d": ("test_rank_independence.py",
-                          "test_two_and_four_ranks_match_one_rank"),
-        "sponge_twist_3d": ("test_rank_independence.py",
-                            "test_two_and_four_ranks_match_one_rank"),
-        "channel_bingham_2d": ("test_semi_implicit_ranks.py", "test_one_two_four_ranks_agree"),
-        "sponge_twist_ob_3d": ("test_semi_implicit_ranks.py", "test_one_two_four_ranks_agree"),
-        "toothpaste_3d": ("test_semi_implicit_ranks.py", "test_one_two_four_ranks_agree"),
-        "kalthoff_winkler_2d": ("test_pd_models_engine.py",
-                                "test_pd_model_scenes_match_across_rank_counts"),
-        "ibmpm_wall_fracture_2d": ("test_pd_models_engine.py",
-                                   "test_pd_model_scenes_match_across_rank_counts"),
-        "pd_plate_tear_2d": ("test_pd_engine.py", "test_pd_scenes_match_across_rank_counts"),
-        "ibmpm_disk_impact_2d": ("test_pd_engine.py",
-                                 "test_pd_scenes_match_across_rank_counts"),
-        "spb_stretched_bar_2d": ("test_spb_ranks.py", "test_spb_bar_matches_across_rank_counts"),
-        "bar_2d": ("test_spb_ranks.py", "test_spb_clamp_matches_across_rank_counts"),
-        "watermelon_3d": ("test_spb_impact_ranks.py",
-                          "test_shock_spb_watermelon_matches_across_rank_counts"),
-        "taylor_cu_3d": ("test_impact_ranks.py", "test_taylor_bar_on_two_ranks_and_restarted"),
-    },
-    "restart": {
-        "disks_2d": ("test_restart.py", "test_restart_reproduces_the_uninterrupted_run"),
-        "pd_plate_tear_2d": ("test_pd_restart.py", "test_pd_restart_is_bitwise"),
-        "channel_bingham_2d": ("test_semi_implicit_ranks.py",
-                               "test_restart_is_bitwise_on_the_same_rank_count"),
-        "sponge_twist_ob_3d": ("test_semi_implicit_ranks.py",
-                               "test_restart_is_bitwise_on_the_same_rank_count"),
-        "toothpaste_3d": ("test_semi_implicit_ranks.py",
-                          "test_restart_is_bitwise_on_the_same_rank_count"),
-        "spb_stretched_bar_2d": ("test_spb_ranks.py", "test_spb_bar_matches_across_rank_counts"),
-        "watermelon_3d": ("test_spb_impact_ranks.py",
-                          "test_shock_spb_watermelon_matches_across_rank_counts"),
-        "taylor_cu_3d": ("test_impact_ranks.py", "test_taylor_bar_on_two_ranks_and_restarted"),
-    },
+    ("test_rank_independence.py", "test_two_and_four_ranks_match_one_rank"):
+        (RANKS, ("disks_2d", "dam_break_2d", "jelly_cube_3d", "sponge_twist_3d")),
+    ("test_restart.py", "test_restart_reproduces_the_uninterrupted_run"):
+        (RESTART, ("disks_2d",)),
+    ("test_semi_implicit_ranks.py", "test_one_two_four_ranks_agree"):
+        (RANKS, ("channel_bingham_2d", "sponge_twist_ob_3d", "toothpaste_3d")),
+    ("test_semi_implicit_ranks.py", "test_restart_is_bitwise_on_the_same_rank_count"):
+        (RESTART, ("channel_bingham_2d", "sponge_twist_ob_3d", "toothpaste_3d")),
+    ("test_pd_models_engine.py", "test_pd_model_scenes_match_across_rank_counts"):
+        (RANKS, ("kalthoff_winkler_2d", "ibmpm_wall_fracture_2d")),
+    ("test_pd_engine.py", "test_pd_scenes_match_across_rank_counts"):
+        (RANKS, ("pd_plate_tear_2d", "ibmpm_disk_impact_2d")),
+    ("test_pd_restart.py", "test_pd_restart_is_bitwise"): (RESTART, ("pd_plate_tear_2d",)),
+    ("test_spb_ranks.py", "test_spb_clamp_matches_across_rank_counts"): (RANKS, ("bar_2d",)),
+    ("test_spb_ranks.py", "test_spb_bar_matches_across_rank_counts"):
+        (BOTH, ("spb_stretched_bar_2d",)),
+    ("test_spb_impact_ranks.py", "test_shock_spb_watermelon_matches_across_rank_counts"):
+        (BOTH, ("watermelon_3d",)),
+    ("test_impact_ranks.py", "test_taylor_bar_on_two_ranks_and_restarted"):
+        (BOTH, ("taylor_cu_3d",)),
 }
 
 
 def test_every_scene_is_covered():
     """Each scene in inputs/ is compared across 1, 2 and 4 ranks and restarted, here or in
-    the dedicated test named in ELSEWHERE (which must exist and name the scene)."""
+    a dedicated test named in ELSEWHERE (which must exist and name the scene)."""
     scenes = sorted(p.stem for p in (ROOT / "inputs").glob("*.toml"))
     assert scenes
+    covered = {(kind, scene) for scene, case in CASES.items()
+               for kind in (BOTH if case.ranks == (1, 2, 4) else RESTART)}
+    for (name, test), (kinds, listed) in ELSEWHERE.items():
+        text = (ROOT / "tests" / "mpi" / name).read_text()
+        assert re.search(rf"^def {test}\(", text, re.M), f"{name} has no {test}"
+        for scene in listed:
+            assert scene in text, f"{name} does not run {scene}"
+            covered.update((kind, scene) for kind in kinds)
     for kind in ("ranks", "restart"):
         for scene in scenes:
-            here = scene in CASES and (kind == "restart" or CASES[scene].ranks == (1, 2, 4))
-            if here:
-                continue
-            assert scene in ELSEWHERE[kind], f"{scene}: no {kind} test"
-            name, test = ELSEWHERE[kind][scene]
-            text = (ROOT / "tests" / "mpi" / name).read_text()
-            assert re.search(rf"^def {test}\(", text, re.M), f"{name} has no {test}"
-            assert scene in text, f"{name} does not run {scene}"
+            assert (kind, scene) in covered, f"{scene}: no {kind} test"
     assert not set(CASES) - set(scenes), "cases for scenes that are not in inputs/"
 
 
-def final_frame(out: Path, steps: int):
-    data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
-    assert attrs["step"] == steps
-    return data, attrs
-
-
-def run(scene: str, case: Case, ranks: int, out: Path, *extra):
+def run(scene: str, case: Case, ranks: int, out: Path, *extra) -> dict:
+    """The case on ``ranks`` ranks (`scene_runs.run_scene`: no CFL warning, one world of
+    ``ranks``): the fields of its last frame."""
     end = case.steps * case.dt
-    args = ["run", f"inputs/{scene}.toml", "--out", str(out), "--quiet", "--force", *extra]
-    for s in (f"simulation.dt={case.dt}", f"simulation.end_time={end}",
-              f"output.every={end / 2}", *case.sets):
-        args += ["--set", s]
-    proc = mpi_hpcmpm(ranks, *args, timeout=400)
-    assert "exceeds the CFL bound" not in proc.stderr, proc.stderr
-    return final_frame(out, case.steps)
+    sets = (f"simulation.dt={case.dt}", f"simulation.end_time={end}",
+            f"output.every={end / 2}", *case.sets)
+    return run_scene(ranks, f"inputs/{scene}.toml", sets, out, case.steps, *extra)
 
 
 @pytest.mark.parametrize("scene", sorted(CASES))
@@ -177,8 +154,7 @@ def test_scene_matches_across_ranks_and_restarts_bitwise(tmp_path, scene):
     frames = {}
     for ranks in case.ranks:
         extra = ("--checkpoint-every", str(half)) if ranks == 2 else ()
-        frames[ranks], attrs = run(scene, case, ranks, tmp_path / f"n{ranks}", *extra)
-        assert attrs["n_ranks"] == ranks      # one N-rank world, not N singletons
+        frames[ranks] = run(scene, case, ranks, tmp_path / f"n{ranks}", *extra)
     for name, least in case.active:
         assert frames[2][name].max() > least, f"{scene}: {name} stayed below {least}"
 
@@ -203,7 +179,7 @@ def test_scene_matches_across_ranks_and_restarts_bitwise(tmp_path, scene):
     assert ckpt.exists(), sorted(p.name for p in (tmp_path / "n2").glob("ckpt_*"))
     mpi_hpcmpm(2, "restart", str(ckpt), "--out", str(tmp_path / "again"), "--quiet",
                timeout=400)
-    again, _ = final_frame(tmp_path / "again", case.steps)
+    again = last_frame(tmp_path / "again", case.steps, 2)
     assert set(again) == set(frames[2])
     for name in sorted(again):
         assert np.array_equal(again[name], frames[2][name]), f"{scene} restart: {name}"

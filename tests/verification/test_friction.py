@@ -188,7 +188,7 @@ def impact_impulses(tmp_path, cfl, mode):
     from hpcmpm.runner import simulate
     from hpcmpm.scene import load_scene
 
-    extra = f'integrator = "semi_implicit"\n[solver]\nmode = "{mode}"' if mode else ""
+    extra = SEMI_IMPLICIT.format(mode=mode) if mode else ""
     path = tmp_path / f"impact_{cfl}_{mode}.toml"
     path.write_text(IMPACT.replace("CFL", str(cfl)).replace("EXTRA", extra))
     final = {}
