@@ -3,8 +3,8 @@ the same count). Fixed dt so every rank count takes the same steps; the artifici
 and the EOS are per particle, so the only differences are the summation order of ghost
 contributions (round-off). Measured differences: 2e-14 (shock column), 8e-14 (Taylor bar).
 
-Cost: 6 launches of `mpiexec hpcmpm` (the column at 1 and 4 ranks; the Taylor bar at 1 and 2,
-its 2-rank run serving the rank and the restart checks)."""
+Cost: 7 launches of `mpiexec hpcmpm` (the column at 1 and 4 ranks; the Taylor bar at 1, 2 and
+4, its 2-rank run serving the rank and the restart checks)."""
 
 import numpy as np
 from test_rank_independence import STEPS, run
@@ -36,8 +36,8 @@ def test_shock_column_on_four_ranks(tmp_path):
     compare("cu_shock_column_2d", 4, got, ref, COLUMN_FIELDS)
 
 
-def test_taylor_bar_on_two_ranks_and_restarted(tmp_path):
-    """1 vs 2 ranks within 1e-10; then 100 steps, checkpoint, restart to 200 on the same 2
+def test_taylor_bar_on_two_and_four_ranks_and_restarted(tmp_path):
+    """1 vs 2 and 4 (oversubscribed) ranks within 1e-10; then 100 steps, checkpoint, restart to 200 on the same 2
     ranks gives the same bits as the 2-rank run without a break: the J2 state (s, eps_p, T,
     E, J) and the stored L its artificial viscosity reads are all in the checkpoint. Every
     run has frames every 50 steps, so all land on the same output times the same way."""
@@ -47,11 +47,14 @@ def test_taylor_bar_on_two_ranks_and_restarted(tmp_path):
     def launch(ranks: int, out, steps: int) -> dict:
         hpcmpm(ranks, "run", "inputs/taylor_cu_3d.toml", "--out", str(out), "--end-time",
                str(steps * TAYLOR_DT), *fixed)
-        return read_frame(sorted(out.glob("frame_*.h5"))[-1])[0]
+        fields, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
+        assert attrs["n_ranks"] == ranks  # N singleton runs would compare equal too
+        return fields
 
     ref = launch(1, tmp_path / "n1", STEPS)
     full = launch(2, tmp_path / "n2", STEPS)
     compare("taylor_cu_3d", 2, full, ref, TAYLOR_FIELDS)
+    compare("taylor_cu_3d", 4, launch(4, tmp_path / "n4", STEPS), ref, TAYLOR_FIELDS)
     parts = tmp_path / "parts"
     launch(2, parts, STEPS // 2)
     hpcmpm(2, "restart", str(latest_checkpoint(parts)), "--end-time",

@@ -114,7 +114,7 @@ ELSEWHERE = {
         (BOTH, ("spb_stretched_bar_2d",)),
     ("test_spb_impact_ranks.py", "test_shock_spb_watermelon_matches_across_rank_counts"):
         (BOTH, ("watermelon_3d",)),
-    ("test_impact_ranks.py", "test_taylor_bar_on_two_ranks_and_restarted"):
+    ("test_impact_ranks.py", "test_taylor_bar_on_two_and_four_ranks_and_restarted"):
         (BOTH, ("taylor_cu_3d",)),
 }
 
