@@ -11,6 +11,7 @@ import pytest
 
 from hpcmpm.io.frames import read_frame
 from launch import mpi_hpcmpm
+from scene_runs import last_frame
 
 # scene, dt, steps, overrides: small enough for CI (each mpiexec launch costs seconds).
 CASES = {
@@ -32,10 +33,6 @@ CASES = {
 FIELDS = ("x", "v", "b", "J")
 
 
-def final_frame(out):
-    return read_frame(sorted(out.glob("frame_*.h5"))[-1])
-
-
 @pytest.fixture(scope="module", params=sorted(CASES))
 def runs(request, tmp_path_factory):
     """Each case on 1, 2 and 4 ranks; frames and a checkpoint at half way (for the restart)."""
@@ -51,8 +48,8 @@ def runs(request, tmp_path_factory):
                   'output.fields=["b", "J"]', *extra]:
             args += ["--set", s]
         mpi_hpcmpm(ranks, *args, timeout=400)
-        data, attrs = final_frame(folder)
-        assert attrs["step"] == steps
+        data, attrs = read_frame(sorted(folder.glob("frame_*.h5"))[-1])
+        assert attrs["step"] == steps and attrs["n_ranks"] == ranks
         out[ranks] = (folder, data, attrs)
     return request.param, steps, dt, out
 
@@ -82,7 +79,6 @@ def test_restart_is_bitwise_on_the_same_rank_count(runs, tmp_path):
     assert half, [c.name for c in ckpts]
     mpi_hpcmpm(2, "restart", str(half[0]), "--out", str(tmp_path / "again"), "--quiet",
                timeout=400)
-    got, attrs = final_frame(tmp_path / "again")
-    assert attrs["step"] == steps
+    got = last_frame(tmp_path / "again", steps, 2)
     for name in FIELDS:
         assert np.array_equal(got[name], full[name]), name
