@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hpcmpm.io.frames import read_frame
-from launch import mpi_hpcmpm
+from scene_runs import run_scene
 
 # Fixed steps below each scene's stable step (checked: no warning in stderr), bitwise or not,
 # and how many: the disk touches the floor at step ~150 and breaks bonds from step ~165.
@@ -19,14 +18,8 @@ SCENES = {"pd_plate_tear_2d": (1.2e-6, True, 100), "ibmpm_disk_impact_2d": (6e-5
 
 def run(scene: str, ranks: int, out: Path, dt: float, steps: int) -> dict:
     end = steps * dt
-    proc = mpi_hpcmpm(ranks, "run", f"inputs/{scene}.toml", "--out", str(out), "--quiet",
-                      "--force", "--set", f"simulation.dt={dt}",
-                      "--set", f"simulation.end_time={end}", "--set", f"output.every={end}",
-                      timeout=400)
-    assert "exceeds the CFL bound" not in proc.stderr
-    data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
-    assert attrs["step"] == steps
-    return data
+    return run_scene(ranks, f"inputs/{scene}.toml", [f"simulation.dt={dt}",
+                     f"simulation.end_time={end}", f"output.every={end}"], out, steps)
 
 
 @pytest.mark.parametrize("scene", sorted(SCENES))
