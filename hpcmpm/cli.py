@@ -39,11 +39,6 @@ def _validate(args) -> int:
     return 0
 
 
-def count(n: int, noun: str) -> str:
-    """ "1 material", "2 materials"."""
-    return f"{n} {noun}{'' if n == 1 else 's'}"
-
-
 def _run(args) -> int:
     from . import numba_cache
     from .signals import SignalFlag
@@ -77,7 +72,7 @@ def _info(args) -> int:
 def _jobscript(args) -> int:
     from .jobs import jobscript_command
 
-    return jobscript_command(args)
+    return jobscript_command(args, build_parser())
 
 
 def _bench(args) -> int:

@@ -81,16 +81,15 @@ def default_out_dir(scene: str, out_dir: str | None) -> str:
     return out_dir or f"runs/{Path(scene).stem}"
 
 
-def check_run_arguments(scene: str, extra_args: list[str]) -> None:
+def check_run_arguments(scene: str, extra_args: list[str], parser) -> None:
     """What the job will run, checked now rather than after a wait in the queue: the scene
     (with the ``--set`` values among ``extra_args``) validates and the extra ``hpcmpm run``
-    arguments parse and pass the command line's checks."""
-    from .cli import build_parser
+    arguments parse (by ``parser``, the command line's) and pass its checks."""
     from .runner import check_options
     from .scene import load_scene
 
     try:
-        run_args = build_parser().parse_args(["run", scene, *extra_args])
+        run_args = parser.parse_args(["run", scene, *extra_args])
     except SystemExit as exc:  # argparse printed the usage line and what is wrong
         raise JobScriptError(f"extra `hpcmpm run` arguments {extra_args}: not accepted "
                              f"(see above)") from exc
@@ -98,9 +97,11 @@ def check_run_arguments(scene: str, extra_args: list[str]) -> None:
     check_options(run_args)
 
 
-def jobscript_command(args) -> int:
+def jobscript_command(args, parser) -> int:
+    """`hpcmpm jobscript`: ``parser`` is the command line's, which checks the run's own
+    arguments (`check_run_arguments`)."""
     extra = list(getattr(args, "extra", None) or [])
-    check_run_arguments(args.scene, extra)
+    check_run_arguments(args.scene, extra, parser)
     output = getattr(args, "output", None)
     text = render(args.scheduler, args.scene, args.nodes, args.ranks_per_node, args.time,
                   out_dir=getattr(args, "out", None), activate=getattr(args, "activate", None),

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import __version__
 from .errors import EXIT_CHECKPOINTED_ON_SIGNAL, HpcmpmError, OutputExistsError, SceneError
-from .parallel import Communicator, Domain, check_launch
+from .parallel import Communicator, check_launch, make_domain
 from .progress import Progress
 from .signals import SignalFlag
 from .simulation import Simulation
@@ -306,12 +306,6 @@ def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
     if problem:
         raise OutputExistsError(problem)
     make_output_dir(comm, out_dir)
-
-
-def make_domain(scene, comm: Communicator | None = None) -> Domain:
-    return Domain(scene.dim, scene.dx, scene.domain_lo, scene.domain_hi,
-                  comm=None if comm is None else comm.comm,
-                  periodic=getattr(scene, "periodic", ()))
 
 
 def initial_particles(sim: Simulation) -> None:

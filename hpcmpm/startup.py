@@ -61,6 +61,11 @@ class MemoryEstimate:
                 f"{format_bytes(BASE_BYTES)} per process)")
 
 
+def counted(n: int, noun: str) -> str:
+    """ "1 material", "2 materials"."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def format_bytes(n: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
         if abs(n) < 1024 or unit == "TiB":
@@ -233,7 +238,7 @@ def peak_rss_bytes() -> int:
 
 def dry_run(scene, comm) -> int:
     """`hpcmpm run --dry-run`: sample, decompose, report counts and memory per rank, exit."""
-    from .runner import make_domain
+    from .parallel import make_domain
     from .simulation import Simulation
 
     domain = make_domain(scene, comm)
@@ -288,8 +293,6 @@ def validate_report(scene) -> str:
         count, exact = estimate_count(scene)
     estimate = estimate_memory(scene, count, 1, exact, body_counts)
     available = available_memory()
-    from .cli import count as counted
-
     head = (f"{scene.path}: ok ({'' if exact else 'about '}{counted(count, 'particle')}, "
             f"{counted(len(scene.materials), 'material')}, dim {scene.dim})")
     memory = f"{scene.path}: memory estimate: {estimate.describe()}"

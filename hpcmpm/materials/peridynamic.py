@@ -236,10 +236,16 @@ class Peridynamic(Material):
                               c_dt, energy=energy)
 
     def make_extension(self, sim):
-        """The step extension that does the PD work (hpcmpm/pd/extension.py)."""
-        from ..pd.extension import make_extension
+        """The step extension that does the PD work: bond forces on the grid (integral-based
+        MPM) or moving the particles themselves (hpcmpm/pd/extension.py), with crack planes
+        for ``crack_threshold`` (003 §5.4, hpcmpm/pd/crack_planes.py)."""
+        if self.params.get("crack_threshold") is not None:
+            from ..pd.crack_planes import make_crack_plane_extension
 
-        return make_extension(sim, self)
+            return make_crack_plane_extension(sim, self)
+        from ..pd.extension import IntegralMPMExtension, PDBodyExtension
+
+        return (IntegralMPMExtension if self.on_grid else PDBodyExtension)(sim, self)
 
     # -- the Material interface --------------------------------------------------------------
     def wave_speed(self) -> float:

@@ -76,6 +76,14 @@ class GridPlan:
     from_touchers: list = field(default_factory=list)
 
 
+def make_domain(scene, comm: Communicator | None = None) -> "Domain":
+    """The `Domain` of a scene (its box, dx and periodic axes) over ``comm`` (COMM_WORLD by
+    default)."""
+    return Domain(scene.dim, scene.dx, scene.domain_lo, scene.domain_hi,
+                  comm=None if comm is None else comm.comm,
+                  periodic=getattr(scene, "periodic", ()))
+
+
 class Domain(Communicator):
     """Decomposition of the cell index space over the ranks, and the exchanges it implies.
 

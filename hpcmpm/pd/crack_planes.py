@@ -234,7 +234,7 @@ class CrackPlanes:
                                   self.radius, self.reach)
 
 
-# -- engine extensions (extension.make_extension picks these for ``crack_threshold``) --------
+# -- engine extensions (Peridynamic.make_extension picks these for ``crack_threshold``) ------
 def _crack_planes_of(ext) -> CrackPlanes:
     material, sim = ext.material, ext.sim
     prm = material.params

@@ -349,11 +349,3 @@ class IntegralMPMExtension(CheckpointedBonds, PDExtension):
         f = self.compute_forces(start, stop)
         self.write_damage(start, stop)
         yield start, stop, f
-
-
-def make_extension(sim, material) -> PDExtension:
-    if material.params.get("crack_threshold") is not None:     # 003 §5.4: crack_planes.py
-        from .crack_planes import make_crack_plane_extension
-        return make_crack_plane_extension(sim, material)
-    cls = IntegralMPMExtension if material.on_grid else PDBodyExtension
-    return cls(sim, material)

@@ -142,4 +142,6 @@ def test_every_option_and_positional_has_help_and_the_program_says_what_it_is():
     assert missing == []
     verbs = {"run", "restart", "validate", "info", "jobscript", "bench", "render", "plot"}
     assert set(parsers) == {"hpcmpm"} | {f"hpcmpm {v}" for v in verbs}  # none escaped
-    assert cli.count(1, "material") == "1 material" and cli.count(2, "material") == "2 materials"
+    from hpcmpm.startup import counted
+
+    assert counted(1, "material") == "1 material" and counted(2, "material") == "2 materials"
