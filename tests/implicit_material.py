@@ -20,7 +20,8 @@ import math
 import numpy as np
 
 from hpcmpm.materials import MATERIALS
-from hpcmpm.materials.base import POISSON, YOUNG, Material, lame
+from hpcmpm.materials.base import Material
+from hpcmpm.materials.params import POISSON, YOUNG, lame
 
 
 def _psi(F, mu, lam):

@@ -20,7 +20,6 @@ momentum, which saves one grid write per node.
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 from .deformation import advance_2d, advance_3d

@@ -2,7 +2,7 @@
 
 `MATERIALS` maps each type name to its class; `make_material(spec, dim)` builds one and
 `validate_params(type, params)` lists what is wrong with a material's parameters (the format of
-each class's ``parameters`` schema is documented in `hpcmpm.materials.base`).
+each class's ``parameters`` schema is documented in `hpcmpm.materials.params`).
 """
 
 from __future__ import annotations
@@ -11,13 +11,14 @@ import difflib
 from typing import Any
 
 from ..errors import SceneError
-from .base import ElasticMaterial, Material, Param, check_params, lame
+from .base import ElasticMaterial, Material
 from .fixed_corotated import FixedCorotated
 from .herschel_bulkley import HerschelBulkley
 from .j2 import J2Plasticity
 from .linear_elastic import LinearElastic
 from .neo_hookean import NeoHookean
 from .oldroyd_b import OldroydB
+from .params import Param, check_params, lame
 from .peridynamic import Peridynamic
 from .shock import ShockModel
 from .snow import Snow

@@ -53,7 +53,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Param, choice
+from .params import Param, choice
 
 MIE_GRUNEISEN, LOG_BULK = 0, 1
 MIN_DENOMINATOR = 1.0e-2

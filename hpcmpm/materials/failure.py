@@ -31,11 +31,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from ..state import SCALAR, VECTOR, FieldSpec
-from .base import Param, choice, table
-from .peridynamic import ACTIVE_BONDS
+from ..pd.load import ACTIVE_BONDS
+from .params import Param, choice, table
 
 COUPLINGS = ("exclusive", "additive")
 DEFAULT_COUPLING = "exclusive"   # the patch test (tests/verification/test_spb_coupled.py)
@@ -173,49 +172,9 @@ def pd_stress(material, fields: dict, F: np.ndarray, tau: np.ndarray) -> None:
     """Kirchhoff stress tau (k, d, d) of ``material`` at the PD deformation gradients F
     (k, d, d) of particles whose fields (rows gathered into ``fields``) hold the rest of
     their state (003 Alg. 3 line 15 as corrected: sigma^PD from the particle's own material).
-    Snow evaluates its elastic part F_E = F^PD F_P^-1 with its hardening; the impact
-    models give their own stress (`ImpactMaterial.pd_stress`)."""
-    from .base import ElasticMaterial
-    from .snow import Snow
-
-    if hasattr(material, "pd_stress"):
-        material.pd_stress(fields, F, tau)
-    elif isinstance(material, ElasticMaterial):
-        material.stress_kernels[material.dim](F, tau, *material.kernel_moduli())
-    elif isinstance(material, Snow):
-        FE = np.empty_like(F)
-        times_inverse(F, np.ascontiguousarray(fields["Fp"]), FE)
-        material._stress(FE, np.ascontiguousarray(fields["Jp"]), tau, material.mu,
-                         material.lam, material.xi, material.max_exponent)
-    else:
+    Each model gives it as ``material.pd_stress(fields, F, tau)``: the elastic models their
+    stress of F (`ElasticMaterial.pd_stress`), snow its elastic part F_E = F^PD F_P^-1 with
+    its hardening (`Snow.pd_stress`), the impact models their own (`ImpactMaterial`)."""
+    if not hasattr(material, "pd_stress"):
         raise TypeError(no_pd_stress_problem(material.name))
-
-
-@njit(cache=True)
-def times_inverse(A, B, out):
-    """out_p = A_p B_p^-1 for (n, d, d) stacks, d = 2 or 3 (snow's F_E = F^PD F_P^-1)."""
-    d = A.shape[1]
-    for p in range(A.shape[0]):
-        if d == 2:
-            det = B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]
-            i00, i01 = B[p, 1, 1] / det, -B[p, 0, 1] / det
-            i10, i11 = -B[p, 1, 0] / det, B[p, 0, 0] / det
-            for r in range(2):
-                a0, a1 = A[p, r, 0], A[p, r, 1]
-                out[p, r, 0] = a0 * i00 + a1 * i10
-                out[p, r, 1] = a0 * i01 + a1 * i11
-        else:
-            c00 = B[p, 1, 1] * B[p, 2, 2] - B[p, 1, 2] * B[p, 2, 1]
-            c01 = B[p, 1, 2] * B[p, 2, 0] - B[p, 1, 0] * B[p, 2, 2]
-            c02 = B[p, 1, 0] * B[p, 2, 1] - B[p, 1, 1] * B[p, 2, 0]
-            det = B[p, 0, 0] * c00 + B[p, 0, 1] * c01 + B[p, 0, 2] * c02
-            inv = ((c00 / det, (B[p, 0, 2] * B[p, 2, 1] - B[p, 0, 1] * B[p, 2, 2]) / det,
-                    (B[p, 0, 1] * B[p, 1, 2] - B[p, 0, 2] * B[p, 1, 1]) / det),
-                   (c01 / det, (B[p, 0, 0] * B[p, 2, 2] - B[p, 0, 2] * B[p, 2, 0]) / det,
-                    (B[p, 0, 2] * B[p, 1, 0] - B[p, 0, 0] * B[p, 1, 2]) / det),
-                   (c02 / det, (B[p, 0, 1] * B[p, 2, 0] - B[p, 0, 0] * B[p, 2, 1]) / det,
-                    (B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]) / det))
-            for r in range(3):
-                for c in range(3):
-                    out[p, r, c] = (A[p, r, 0] * inv[0][c] + A[p, r, 1] * inv[1][c]
-                                    + A[p, r, 2] * inv[2][c])
+    material.pd_stress(fields, F, tau)

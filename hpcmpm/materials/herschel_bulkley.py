@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import math
 
-from .base import Param
 from .left_cauchy_green import ELASTIC_KEYS, FLOW_UPDATE, HB, LeftCauchyGreenMaterial
+from .params import Param
 
 YIELD_STRAIN = Param(0.0, math.inf, low_inclusive=True,
                      doc="yield strain sigma_Y: flow when |dev b_E| > sigma_Y (dimensionless)")

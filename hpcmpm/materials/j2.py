@@ -54,11 +54,11 @@ from numba import njit
 
 from ..errors import SceneError
 from ..state import SCALAR, TENSOR, FieldSpec
-from .base import POISSON, YOUNG, Param, choice, lame, table
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
 from .failure import SPB_FAILURE, SPB_FIELDS
 from .impact import ImpactMaterial, kirchhoff2, kirchhoff3
+from .params import POISSON, YOUNG, Param, choice, lame, table
 from .tensors import det3, load2, load3, store2, store3
 
 NEWTON, LINEARIZED = 0, 1

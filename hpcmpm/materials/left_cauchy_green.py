@@ -66,10 +66,11 @@ from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
 from ..errors import SceneError
-from .base import POISSON, YOUNG, Material, Param, check_params, choice, lame
+from .base import Material
 from . import isochoric_return as implicit_return
 from .matrix import (EYE, add, add_identity, axpy, ddot, det, dim_of, inverse, load, mul,
                      mul_bt, root_d, scale, store, sub, sym, trace, transpose)
+from .params import POISSON, YOUNG, Param, check_params, choice, lame
 
 OB_EXPLICIT, OB_SPD, FE, FE_BDF2, HB, VM = 0, 1, 2, 3, 4, 5
 # Implicit isochoric return (isochoric_return.py): Herschel-Bulkley, and von Mises with eta = 0.

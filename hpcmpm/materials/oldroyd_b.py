@@ -32,9 +32,9 @@ from __future__ import annotations
 
 import math
 
-from .base import Param, choice
 from .left_cauchy_green import (ELASTIC_KEYS, FE, FE_BDF2, FLUID, OB_EXPLICIT, OB_SPD,
                                 PLASTICITY_MODES, LeftCauchyGreenMaterial)
+from .params import Param, choice
 from ..state import TENSOR, FieldSpec
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 from ..errors import SceneError
-from .base import Param, choice
+from .params import Param, choice
 
 
 def _is_bool(value):

@@ -27,15 +27,11 @@ import numpy as np
 
 from ..pd.families import DEFAULT_HORIZON, INFLUENCES, half_bonds_per_particle
 from ..pd import moduli
+from ..pd.load import ACTIVE_BONDS
 from ..state import SCALAR, VECTOR, FieldSpec
-from .base import POISSON, YOUNG, ElasticMaterial, Material, Param, choice, resolve_params
+from .base import ElasticMaterial, Material
+from .params import YOUNG, Param, choice, resolve_params
 from .pd_models import EXTRA_PARAMETERS, check_chapter5
-
-# Active (intact) half-bonds of a particle, its load-balance weight (pd/load.py); -1 until
-# its bonds are made. One spec for PD materials and SPB materials (failure.py): a scene with
-# both shares the field.
-ACTIVE_BONDS = FieldSpec(SCALAR, "i4", -1)
-
 
 def _point(x) -> str:
     return "[" + ", ".join(f"{v:g}" for v in x) + "]"

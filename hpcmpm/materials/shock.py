@@ -31,12 +31,12 @@ import math
 from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
-from .base import POISSON, Param, lame, table
 from .decompositions import svd2, svd3
 from .eos import (EOS_SCHEMA, VISCOSITY_PARAMS, Volumetric, record_failure, total_pressure,
                   volume_step)
 from .failure import SPB_FAILURE
 from .impact import ImpactMaterial, kirchhoff2, kirchhoff3
+from .params import POISSON, Param, lame, table
 from .tensors import (det2, det3, frob2, frob3, load2, load3, mul2, mul2_bt, mul3, mul3_bt,
                       store2, store3)
 

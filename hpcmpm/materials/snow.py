@@ -38,13 +38,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
-from .base import POISSON, YOUNG, Material, Param, lame
+from .base import Material
 from .decompositions import v_diag_vt, polar2, polar3, svd2, svd3
 from .failure import SPB_FAILURE
 from .implicit import COROTATED, ImplicitF
+from .params import POISSON, YOUNG, Param, lame
 from .fixed_corotated import corotated_psi_2d, corotated_psi_3d, corotated_tau_2d, corotated_tau_3d
 from .tensors import load2, load3, mul2, mul2_bt, mul3, mul3_bt, store2, store3
 
@@ -141,6 +143,36 @@ def _energy_3d(F, Jp, vol0, mu0, lam0, xi, max_exponent):
     return total
 
 
+@njit(cache=True)
+def times_inverse(A, B, out):
+    """out_p = A_p B_p^-1 for (n, d, d) stacks, d = 2 or 3 (snow's F_E = F^PD F_P^-1)."""
+    d = A.shape[1]
+    for p in range(A.shape[0]):
+        if d == 2:
+            det = B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]
+            i00, i01 = B[p, 1, 1] / det, -B[p, 0, 1] / det
+            i10, i11 = -B[p, 1, 0] / det, B[p, 0, 0] / det
+            for r in range(2):
+                a0, a1 = A[p, r, 0], A[p, r, 1]
+                out[p, r, 0] = a0 * i00 + a1 * i10
+                out[p, r, 1] = a0 * i01 + a1 * i11
+        else:
+            c00 = B[p, 1, 1] * B[p, 2, 2] - B[p, 1, 2] * B[p, 2, 1]
+            c01 = B[p, 1, 2] * B[p, 2, 0] - B[p, 1, 0] * B[p, 2, 2]
+            c02 = B[p, 1, 0] * B[p, 2, 1] - B[p, 1, 1] * B[p, 2, 0]
+            det = B[p, 0, 0] * c00 + B[p, 0, 1] * c01 + B[p, 0, 2] * c02
+            inv = ((c00 / det, (B[p, 0, 2] * B[p, 2, 1] - B[p, 0, 1] * B[p, 2, 2]) / det,
+                    (B[p, 0, 1] * B[p, 1, 2] - B[p, 0, 2] * B[p, 1, 1]) / det),
+                   (c01 / det, (B[p, 0, 0] * B[p, 2, 2] - B[p, 0, 2] * B[p, 2, 0]) / det,
+                    (B[p, 0, 2] * B[p, 1, 0] - B[p, 0, 0] * B[p, 1, 2]) / det),
+                   (c02 / det, (B[p, 0, 1] * B[p, 2, 0] - B[p, 0, 0] * B[p, 2, 1]) / det,
+                    (B[p, 0, 0] * B[p, 1, 1] - B[p, 0, 1] * B[p, 1, 0]) / det))
+            for r in range(3):
+                for c in range(3):
+                    out[p, r, c] = (A[p, r, 0] * inv[0][c] + A[p, r, 1] * inv[1][c]
+                                    + A[p, r, 2] * inv[2][c])
+
+
 class Snow(ImplicitF, Material):
     """Stomakhin 2013 snow: clamped fixed corotated elasticity with (de)hardening; F holds F_E."""
 
@@ -193,6 +225,14 @@ class Snow(ImplicitF, Material):
     def update_stress(self, fields, dt: float) -> None:
         """Writes fields["tau"] (n, d, d) from the projected F_E and the hardening of Jp."""
         self._stress(fields["F"], fields["Jp"], fields["tau"], self.mu, self.lam, self.xi,
+                     self.max_exponent)
+
+    def pd_stress(self, fields, F, tau) -> None:
+        """tau (k, d, d) at the peridynamic deformation gradients F (SPB-MPM,
+        `failure.pd_stress`): the elastic part F_E = F^PD F_P^-1 with the hardening of Jp."""
+        FE = np.empty_like(F)
+        times_inverse(F, np.ascontiguousarray(fields["Fp"]), FE)
+        self._stress(FE, np.ascontiguousarray(fields["Jp"]), tau, self.mu, self.lam, self.xi,
                      self.max_exponent)
 
     def energy(self, fields) -> float:

@@ -26,9 +26,10 @@ import numpy as np
 from numba import njit
 
 from ..kernels.deformation import volume_ratio
-from .base import Material, Param
+from .base import Material
 from .implicit import j_energy, j_gradient, j_hessian
 from .matrix import EYE
+from .params import Param
 from .tensors import det2, det3, load2, load3
 
 

@@ -24,6 +24,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..state import SCALAR, FieldSpec
+
+# Active (intact) half-bonds of a particle, its load-balance weight (`add_bond_load`); -1
+# until its bonds are made. One spec for PD materials and SPB materials
+# (materials/peridynamic.py, materials/failure.py): a scene with both shares the field.
+ACTIVE_BONDS = FieldSpec(SCALAR, "i4", -1)
+
 BOND_COST = {(2, "pmb"): 0.061, (2, "lps"): 0.158, (2, "correspondence"): 0.338,
              (3, "pmb"): 0.0122, (3, "lps"): 0.0327, (3, "correspondence"): 0.117}
 

@@ -567,6 +567,7 @@ class SemiImplicitIntegrator:
             gamma, delta, rr = self._dots(sim, [("cg_r", "cg_u"), ("cg_w", "cg_u"),
                                                 ("cg_r", "cg_r")])
             first = True
+            gamma_old = alpha = math.nan  # the previous iteration's; not read on the first
             while rr > target:
                 if iterations >= self.max_iterations or not math.isfinite(rr):
                     self._fail(sim, rr, bb, iterations)

@@ -11,7 +11,7 @@ import pytest
 
 from hpcmpm import simulation
 from hpcmpm.materials import MATERIALS
-from hpcmpm.materials.base import Param, check_params, choice, resolve_params, table
+from hpcmpm.materials.params import Param, check_params, choice, resolve_params, table
 from hpcmpm.runner import simulate
 from hpcmpm.scene import load_scene, parse_scene
 

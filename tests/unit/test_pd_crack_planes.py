@@ -54,7 +54,6 @@ def test_inactive_fraction_counts_broken_half_bonds_per_cell():
 
 def test_failure_measure_and_plane_cut():
     pts = plate()
-    n = pts.n_owned
     # Pull the right half apart along x by a gap that stretches the bonds across x = 10 by
     # 0.1/|X_x| at most: the short horizontal bonds exceed l_threshold = 0.01 only near the
     # middle row, where an extra opening is added.
@@ -100,7 +99,6 @@ def test_failure_measure_and_plane_cut():
 
 def test_inactive_fraction_and_plastic_stretch_raise_the_failure_stretch():
     pts = plate()
-    n = pts.n_owned
     owner, q = half_bonds(pts)
     # Break 30 % of the bonds of the particles of one cell: p_inactive there is 0.3-ish,
     # so a stretch s breaks a bond there only when s > l_threshold (1 + p_bar).

@@ -4,7 +4,6 @@ constants (beta, the time-step micromodulus) and the crack-plane extension."""
 
 import math
 
-import numpy as np
 import pytest
 
 from hpcmpm.errors import SceneError

@@ -62,7 +62,6 @@ def test_p2g_conserves_mass_and_momentum(dim, order, scheme):
 
 
 def angular_momentum(x, v, mass, C, scheme, order):
-    dim = x.shape[1]
     inertia = DX * DX / inverse_inertia_factor(order)
     out = momentum_and_kinetic_energy(x, v, mass, C, scheme >= APIC, inertia)
     return out[3:6]

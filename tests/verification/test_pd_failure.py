@@ -1,7 +1,6 @@
 """Failure (003 eq. 4.8): a bond breaks in the first step its stretch exceeds s0, at both
 ends; the energy to break every bond across a plane against G0."""
 
-import math
 
 import numpy as np
 import pytest
