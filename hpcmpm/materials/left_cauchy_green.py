@@ -261,12 +261,14 @@ def _hessian_from_parts(parts, B, D, dt, mu, lam):
 
 # -- kernels over a material's particle slice ------------------------------------------------
 @njit(cache=True)
-def update_state(eye, mode, b, J, Fe, Fe_prev, Lv, dt, inv_wi, sigma_y, inv_h, eta, rescale):
+def update_state(eye, mode, b, J, Fe, Fe_prev, Lv, dt, inv_wi, sigma_y, inv_h, eta, rescale,
+                 decrements, known):
     """Advance b (n, d, d), J (n,) and, for the fe modes, Fe (and Fe_prev) over dt with the
     step's velocity gradient Lv (n, d, d). ``rescale``: store b with det b = J^2 (HB, VM) or
     the unscaled conformation (Oldroyd-B). An inadmissible particle (J, det b_hat or tr b_hat
     <= 0) gets J = NaN and keeps its b. Returns (count of such particles, first index, its J,
-    det b_hat, tr b_hat)."""
+    det b_hat, tr b_hat). HB_IMPLICIT with ``known``: the returns' decrements at these L
+    are in ``decrements`` (n,)."""
     bad = 0
     first = -1
     fJ = fh = ft = 0.0
@@ -284,8 +286,9 @@ def update_state(eye, mode, b, J, Fe, Fe_prev, Lv, dt, inv_wi, sigma_y, inv_h, e
                     store(Fe_prev, p, f)
                 store(Fe, p, fnew)
         elif mode == HB_IMPLICIT:  # b_E with det J^2 already: the rescale is round-off
-            bh, Jnew, _, _, _ = implicit_return.returned(bn, L, dt, J[p], sigma_y, 1.0 / inv_h,
-                                                          eta)
+            Delta = decrements[p] if known else implicit_return.decrement(
+                bn, L, dt, J[p], sigma_y, 1.0 / inv_h, eta)
+            bh, Jnew, _, _, _ = implicit_return.returned_by(bn, L, dt, J[p], Delta)
         else:
             S, R, B = plastic_factors(mode, bn, bn, bn, dt, inv_wi, sigma_y, inv_h, eta)
             bh = b_hat(S, R, B, L, dt)
@@ -337,15 +340,20 @@ def energy(eye, b, J, vol0, mu, lam):
 
 @njit(cache=True)
 def implicit_energy(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, inv_wi, sigma_y,
-                    inv_h, eta):
+                    inv_h, eta, decrements, known):
     """sum_p e_p(L_p) with the state at t^n fixed; +inf as soon as one particle is
-    inadmissible."""
+    inadmissible. HB_IMPLICIT: ``known``, the returns' decrements at these L are in
+    ``decrements`` (n,); else the kernel solves them and writes them there."""
     total = 0.0
     for p in range(b.shape[0]):
         L = load(Lv, p, eye)
         if mode == HB_IMPLICIT:
-            e = implicit_return.energy_density(load(b, p, eye), L, dt, J[p], mu, lam, sigma_y,
-                                               1.0 / inv_h, eta)
+            if known:
+                e = implicit_return.energy_density_by(load(b, p, eye), L, dt, J[p], mu, lam,
+                                                      sigma_y, 1.0 / inv_h, eta, decrements[p])
+            else:
+                e, decrements[p] = implicit_return.energy_and_decrement(
+                    load(b, p, eye), L, dt, J[p], mu, lam, sigma_y, 1.0 / inv_h, eta)
         else:
             S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
                                       load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
@@ -359,15 +367,19 @@ def implicit_energy(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, i
 
 @njit(cache=True)
 def implicit_gradient(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, inv_wi,
-                      sigma_y, inv_h, eta, G):
+                      sigma_y, inv_h, eta, G, decrements, known):
     """G_p = de_p/dL_p (n, d, d). Returns the number of inadmissible particles (their G is
-    NaN)."""
+    NaN). HB_IMPLICIT: ``known``, the returns' decrements at these L are in ``decrements``
+    (n,); else the kernel solves them and writes them there."""
     bad = 0
     for p in range(b.shape[0]):
         L = load(Lv, p, eye)
         if mode == HB_IMPLICIT:
-            g, ok = implicit_return.gradient_point(load(b, p, eye), L, dt, J[p], mu, lam,
-                                                   sigma_y, 1.0 / inv_h, eta)
+            bn = load(b, p, eye)
+            if not known:
+                decrements[p] = implicit_return.decrement(bn, L, dt, J[p], sigma_y,
+                                                          1.0 / inv_h, eta)
+            g, ok = implicit_return.gradient_point_by(bn, L, dt, J[p], mu, lam, decrements[p])
         else:
             S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
                                       load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
@@ -569,9 +581,14 @@ class LeftCauchyGreenMaterial(Material):
         particle whose J, det b_hat or tr b_hat is not positive gets J = NaN and a line in
         ``self.failures``."""
         b, J, Fe, Fe_prev = self._state(fields)
+        # The solve's last energy was often at this very L (APIC: G2P's L is the solve's to
+        # the bit; MLS differs in round-off): then its returns need not be solved again.
+        known = self._known_decrements(fields, fields["L"], dt)
         bad, first, fJ, fh, ft = update_state(self.eye, self.mode, b, J, Fe, Fe_prev,
                                               fields["L"], dt, *self._plastic_args(),
-                                              self.rescale_state)
+                                              self.rescale_state,
+                                              _NO_DECREMENTS if known is None else known,
+                                              known is not None)
         if bad:
             pid = int(fields["id"][first]) if "id" in fields else first
             more = f" ({bad - 1} more particles)" if bad > 1 else ""
@@ -609,11 +626,25 @@ class LeftCauchyGreenMaterial(Material):
     def implicit_energy(self, fields, L, dt: float) -> float:
         """sum_p e_p(L_p), e_p = V0 psi(b_E(L), J(L)) + dt V0 J^n mu_N sym(L):sym(L), with the
         state at t^n in ``fields``; +inf when a J, det b_hat or tr b_hat is not positive."""
-        return float(implicit_energy(*self._implicit_args(fields), L, dt, *self._moduli()))
+        known = self._known_decrements(fields, L, dt)
+        hb = self.mode == HB_IMPLICIT and known is None
+        values = known if known is not None else (np.empty(len(L)) if hb else _NO_DECREMENTS)
+        energy = float(implicit_energy(*self._implicit_args(fields), L, dt, *self._moduli(),
+                                       values, known is not None))
+        if hb and energy < math.inf:
+            # Newton's line search ends at the point whose gradient comes next.
+            self._remember_decrements(fields, L, dt, values)
+        return energy
 
     def implicit_gradient(self, fields, L, dt: float, G) -> None:
         """Writes G (n, d, d), G_p = de_p/dL_p (energy x time; NaN where inadmissible)."""
-        implicit_gradient(*self._implicit_args(fields), L, dt, *self._moduli(), G)
+        known = self._known_decrements(fields, L, dt)
+        values = known if known is not None else (
+            np.empty(len(L)) if self.mode == HB_IMPLICIT else _NO_DECREMENTS)
+        implicit_gradient(*self._implicit_args(fields), L, dt, *self._moduli(), G, values,
+                          known is not None)
+        if known is None and self.mode == HB_IMPLICIT:
+            self._remember_decrements(fields, L, dt, values)
 
     def implicit_hessian(self, fields, L, dt: float, dL, dG) -> None:
         """Writes dG (n, d, d), dG_p = D^2 e_p(L_p)[dL_p]."""
@@ -628,19 +659,33 @@ class LeftCauchyGreenMaterial(Material):
     def _decrements(self, fields, L, dt: float) -> np.ndarray:
         """The implicit return's Delta_p at (state, L, dt), kept while those stay the same:
         the CG iterations of a Newton step apply the Hessian at one L many times, and the
-        scalar Newton solve of the return is most of a product's cost. The key compares the
-        arrays (O(n d^2) reads, small beside a product). Empty outside HB_IMPLICIT."""
+        scalar Newton solve of the return is most of a product's cost. Empty outside
+        HB_IMPLICIT."""
         if self.mode != HB_IMPLICIT:
             return _NO_DECREMENTS
-        b, J = fields["b"], fields["J"]
-        key = self._decrement_key
-        if key is not None and key[0] == dt and key[1].shape == L.shape and \
-                np.array_equal(key[1], L) and np.array_equal(key[2], b) and \
-                np.array_equal(key[3], J):
-            return self._decrement_values
-        values = np.empty(len(J))
-        return_decrements(self.eye, b, J, L, dt, self.sigma_y, self.inv_h, self.implicit_eta,
-                          values)
-        self._decrement_key = (dt, L.copy(), b.copy(), J.copy())
-        self._decrement_values = values
+        known = self._known_decrements(fields, L, dt)
+        if known is not None:
+            return known
+        values = np.empty(len(L))
+        return_decrements(self.eye, fields["b"], fields["J"], L, dt, self.sigma_y, self.inv_h,
+                          self.implicit_eta, values)
+        self._remember_decrements(fields, L, dt, values)
         return values
+
+    def _known_decrements(self, fields, L, dt: float) -> np.ndarray | None:
+        """The decrements last solved (`_remember_decrements`) if they were solved at this
+        state, L and dt, else None. A Newton iteration solves the return at one L in its
+        line search's energy, its gradient and its tangent: once, with this. The key
+        compares the arrays (O(n d^2) reads, small beside one return per particle)."""
+        key = self._decrement_key
+        if self.mode != HB_IMPLICIT or key is None:
+            return None
+        b, J = fields["b"], fields["J"]
+        if key[0] == dt and key[1].shape == L.shape and np.array_equal(key[1], L) and \
+                np.array_equal(key[2], b) and np.array_equal(key[3], J):
+            return self._decrement_values
+        return None
+
+    def _remember_decrements(self, fields, L, dt: float, values: np.ndarray) -> None:
+        self._decrement_key = (dt, L.copy(), fields["b"].copy(), fields["J"].copy())
+        self._decrement_values = values

@@ -224,3 +224,53 @@ def test_flow_update_choice():
         assert mat.mode == explicit
         with pytest.raises(SceneError, match="flow_update: 'implicit' is built for 2D only"):
             material(kind, 3, flow_update="implicit")
+
+
+@pytest.mark.parametrize("case", ["hb_h0.6", "von_mises"])
+def test_returns_solved_once_per_point_give_the_same_bits(case, monkeypatch):
+    """A Newton iteration evaluates the energy, the gradient, the tangent and (after G2P) the
+    state update at one L; the return's decrements are solved once there and reused
+    (`_known_decrements`). Every hook must give the bits of fresh materials that solve their
+    own, and a different L, state or dt must not reuse them."""
+    from hpcmpm.materials import left_cauchy_green as lcg
+
+    rng = np.random.default_rng(seed(case) + 50)
+    f, L = state_and_L(make(case), rng)
+
+    def results(L, state, dt, materials):
+        """Energy, gradient, tangent and updated (b, J), each hook from materials[k]."""
+        e = materials[0].implicit_energy(state, L, dt)
+        G = np.empty_like(L)
+        materials[1].implicit_gradient(state, L, dt, G)
+        T = np.empty((len(L), 4, 4))
+        materials[2].implicit_tangent(state, L, dt, None, None, T)
+        new = {k: v.copy() for k, v in state.items()}
+        new["L"] = L.copy()
+        materials[3].update_state(new, dt)
+        return e, G, T, new["b"], new["J"]
+
+    def fresh(*args):
+        return results(*args, [make(case) for _ in range(4)])
+
+    mat = make(case)
+    for a, b in zip(results(L, f, DT, [mat] * 4), fresh(L, f, DT)):
+        assert np.array_equal(a, b)
+    # The energy solved the returns at L; the tangent finds them without solving.
+    mat.implicit_energy(f, L, DT)
+    assert mat._known_decrements(f, L, DT) is not None
+    calls = []
+    original = lcg.return_decrements
+    monkeypatch.setattr(lcg, "return_decrements",
+                        lambda *args: calls.append(1) or original(*args))
+    mat.implicit_tangent(f, L, DT, None, None, np.empty((len(L), 4, 4)))
+    assert calls == []
+    # Another L (one ulp in one entry), another state, another dt: solved anew, same bits.
+    L2 = L.copy()
+    L2[3, 0, 1] = np.nextafter(L2[3, 0, 1], np.inf)
+    f2 = {k: v.copy() for k, v in f.items()}
+    f2["J"][5] *= 1.0 + 1e-6
+    for Lx, fx, dtx in ((L2, f, DT), (L, f2, DT), (L, f, DT * 1.5)):
+        mat.implicit_energy(f, L, DT)              # the returns at (L, f, DT) remembered
+        assert mat._known_decrements(fx, Lx, dtx) is None
+        for a, b in zip(results(Lx, fx, dtx, [mat] * 4), fresh(Lx, fx, dtx)):
+            assert np.array_equal(a, b)
