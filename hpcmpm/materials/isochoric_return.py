@@ -76,31 +76,48 @@ def dissipation(Delta, dt, sigma_y, h, eta):
 @njit(cache=True)
 def plastic_decrement(J, delta_tr, dt, sigma_y, h, eta):
     """Delta of the return (module docstring), 0 without flow: the root of
-    J sinh(delta_tr - Delta) = D'(Delta)/mu on (0, delta_tr), decreasing in Delta; Newton
-    safeguarded by bisection (D'' is unbounded at 0 for h < 1)."""
+    g(Delta) = J sinh(delta_tr - Delta) - D'(Delta)/mu, decreasing in Delta. Newton,
+    safeguarded by bisection on a bracket [0, hi]: the root lies below the rate-independent
+    return (D' >= sigma_Y/sqrt2) and below the decrement the trial stress's own rate would
+    give (the stress falls as Delta grows). For h > 1 Newton runs on the inverted law,
+    phi(Delta) = Delta - sqrt2 dt ((sqrt2 J sinh(delta_tr - Delta) - sigma_Y)/eta)^(1/h),
+    whose power 1/h is mild where D' ~ x^h is steep (h = 10: 49 iterations on g, most of
+    them bisections, against 13 on phi; hb_mixer_2d). D'' is unbounded at 0 for h < 1."""
     if SQRT2 * J * math.sinh(delta_tr) <= sigma_y:
         return 0.0
     if eta == 0.0:  # von Mises: |dev b_E| = sigma_Y
         return delta_tr - math.asinh(sigma_y / (SQRT2 * J))
-    lo, hi = 0.0, delta_tr
-    # Start from the rate-independent return (the root lies below it: D' >= sigma_Y/sqrt2).
-    x0 = delta_tr - math.asinh(sigma_y / (SQRT2 * J))
-    Delta = 0.5 * x0
+    inverse = 1.0 / h
+    rate_bound = SQRT2 * dt * ((SQRT2 * J * math.sinh(delta_tr) - sigma_y) / eta) ** inverse
+    lo, hi = 0.0, min(delta_tr - math.asinh(sigma_y / (SQRT2 * J)), rate_bound)
+    Delta = 0.5 * hi
     for _ in range(RETURN_ITERATIONS):
-        g = J * math.sinh(delta_tr - Delta) - dissipation_slope(Delta, dt, sigma_y, h, eta)
+        sh = math.sinh(delta_tr - Delta)
+        g = J * sh - dissipation_slope(Delta, dt, sigma_y, h, eta)
         if g > 0.0:
             lo = Delta
         else:
             hi = Delta
         if hi - lo <= RETURN_TOLERANCE * delta_tr:
             break
-        x = Delta / (SQRT2 * dt)
-        slope = J * math.cosh(delta_tr - Delta)
-        if x > 0.0:
-            slope += eta * h * x ** (h - 1.0) / (2.0 * dt)
-        step = Delta + g / slope
+        ch = J * math.cosh(delta_tr - Delta)
+        if h > 1.0:
+            q = (SQRT2 * J * sh - sigma_y) / eta
+            if q > 0.0:
+                qh = q ** inverse
+                dphi = 1.0 + 2.0 * dt * qh * ch / (h * q * eta)
+                step = Delta - (Delta - SQRT2 * dt * qh) / dphi
+            else:  # beyond the rate-independent return: only bisection knows where to go
+                step = hi
+        else:
+            x = Delta / (SQRT2 * dt)
+            slope = ch + (eta * h * x ** (h - 1.0) / (2.0 * dt) if x > 0.0 else 0.0)
+            step = Delta + g / slope
         if not (lo < step < hi):
             step = 0.5 * (lo + hi)
+        elif abs(step - Delta) <= RETURN_TOLERANCE * delta_tr:
+            Delta = step
+            break
         if step == Delta:
             break
         Delta = step
