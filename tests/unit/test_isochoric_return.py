@@ -274,3 +274,41 @@ def test_returns_solved_once_per_point_give_the_same_bits(case, monkeypatch):
         assert mat._known_decrements(fx, Lx, dtx) is None
         for a, b in zip(results(Lx, fx, dtx, [mat] * 4), fresh(Lx, fx, dtx)):
             assert np.array_equal(a, b)
+
+
+def test_plastic_decrement_is_the_root_of_the_flow_law():
+    """The return's scalar Newton (bracketed, on the inverted law for h > 1) against a plain
+    bisection of g(Delta) = J sinh(delta_tr - Delta) - D'(Delta) written here, over flow
+    indices from strong thinning to h = 10 and yield stresses, consistencies and steps over
+    several decades. Both stop at a bracket of 1e-15 delta_tr, so they agree to a few of
+    those (the bisection's own width and the round-off of g near its root)."""
+    from hpcmpm.materials.isochoric_return import plastic_decrement
+
+    def reference(J, delta_tr, dt, sigma_y, h, eta):
+        def g(D):
+            x = D / (math.sqrt(2.0) * dt)
+            return J * math.sinh(delta_tr - D) - (sigma_y + eta * x ** h) / math.sqrt(2.0)
+        if g(0.0) <= 0.0:
+            return 0.0
+        lo, hi = 0.0, delta_tr
+        while hi - lo > 1e-16 * delta_tr:
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            lo, hi = (mid, hi) if g(mid) > 0.0 else (lo, mid)
+        return 0.5 * (lo + hi)
+
+    rng = np.random.default_rng(7)
+    flowing = 0
+    for h in (0.3, 0.5, 1.0, 1.0101, 1.7, 10.0):
+        for sigma_y in (1e-6, 0.1):
+            for eta in (1e-3, 1.0):
+                for dt in (1e-4, 0.3):
+                    for _ in range(5):
+                        J = rng.uniform(0.7, 1.3)
+                        delta_tr = rng.uniform(0.01, 2.0)
+                        got = plastic_decrement(J, delta_tr, dt, sigma_y, h, eta)
+                        want = reference(J, delta_tr, dt, sigma_y, h, eta)
+                        flowing += want > 0.0
+                        assert abs(got - want) <= 1e-14 * delta_tr, (h, sigma_y, eta, dt)
+    assert flowing > 200  # the cases flow: the root, not the elastic branch, is compared
