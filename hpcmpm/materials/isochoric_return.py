@@ -140,15 +140,9 @@ def trial(bn, L, dt, Jn):
 
 
 @njit(cache=True)
-def returned(bn, L, dt, Jn, sigma_y, h, eta):
-    """(b_E^{n+1}, J, Delta, delta, psi part) of the return: b_E (2D), the decrement, the
-    returned delta and J cosh(delta) (module docstring). Also A^-T."""
-    return returned_by(bn, L, dt, Jn, decrement(bn, L, dt, Jn, sigma_y, h, eta))
-
-
-@njit(cache=True)
-def returned_by(bn, L, dt, Jn, Delta):
-    """`returned` with its decrement Delta at L already known (`decrement`)."""
+def returned(bn, L, dt, Jn, Delta):
+    """(b_E^{n+1}, J, Delta, delta, A^-T) of the return with its decrement Delta at L
+    (`decrement`): b_E (2D), the decrement, the returned delta (module docstring)."""
     AiT, J, bbar, X, s_tr, P, root = trial(bn, L, dt, Jn)
     delta_tr = math.asinh(s_tr)
     if Delta == 0.0:
@@ -159,26 +153,21 @@ def returned_by(bn, L, dt, Jn, Delta):
 
 
 @njit(cache=True)
-def energy_density(bn, L, dt, Jn, mu, lam, sigma_y, h, eta):
-    """e(L)/V0 (module docstring), +inf when J <= 0 or b_tr is not SPD."""
-    return energy_and_decrement(bn, L, dt, Jn, mu, lam, sigma_y, h, eta)[0]
-
-
-@njit(cache=True)
 def energy_and_decrement(bn, L, dt, Jn, mu, lam, sigma_y, h, eta):
-    """(e(L)/V0, Delta at L): `energy_density` and the `decrement` it solved for, so the
+    """(e(L)/V0, Delta at L): `energy_density` and the decrement it solved for, so the
     gradient and tangent at the same L need not solve the return again (Delta 0 where e is
     +inf)."""
     AiT, J, bbar, X, s_tr, P, root = trial(bn, L, dt, Jn)
     if not (J > 0.0 and root > 0.0):  # NaN-safe
         return math.inf, 0.0
     Delta = plastic_decrement(J, math.asinh(s_tr), dt, sigma_y, h, eta)
-    return energy_density_by(bn, L, dt, Jn, mu, lam, sigma_y, h, eta, Delta), Delta
+    return energy_density(bn, L, dt, Jn, mu, lam, sigma_y, h, eta, Delta), Delta
 
 
 @njit(cache=True)
-def energy_density_by(bn, L, dt, Jn, mu, lam, sigma_y, h, eta, Delta):
-    """`energy_density` with the decrement Delta at L already known (`decrement`)."""
+def energy_density(bn, L, dt, Jn, mu, lam, sigma_y, h, eta, Delta):
+    """e(L)/V0 (module docstring) with the return's decrement Delta at L (`decrement`), +inf
+    when J <= 0 or b_tr is not SPD."""
     AiT, J, bbar, X, s_tr, P, root = trial(bn, L, dt, Jn)
     if not (J > 0.0 and root > 0.0):  # NaN-safe
         return math.inf
@@ -195,15 +184,10 @@ def kirchhoff_returned(bE, J, mu, lam):
 
 
 @njit(cache=True)
-def gradient_point(bn, L, dt, Jn, mu, lam, sigma_y, h, eta):
-    """(de/dL)/(dt V0) = tau^{n+1} A^-T, and admissibility (J > 0, det b_tr > 0)."""
-    return gradient_point_by(bn, L, dt, Jn, mu, lam, decrement(bn, L, dt, Jn, sigma_y, h, eta))
-
-
-@njit(cache=True)
-def gradient_point_by(bn, L, dt, Jn, mu, lam, Delta):
-    """`gradient_point` with the decrement Delta at L already known (`decrement`)."""
-    bE, J, Delta, delta, AiT = returned_by(bn, L, dt, Jn, Delta)
+def gradient_point(bn, L, dt, Jn, mu, lam, Delta):
+    """(de/dL)/(dt V0) = tau^{n+1} A^-T with the return's decrement Delta at L (`decrement`),
+    and admissibility (J > 0, det b_tr > 0)."""
+    bE, J, Delta, delta, AiT = returned(bn, L, dt, Jn, Delta)
     ok = J > 0.0 and det(bE) > 0.0
     return mul(kirchhoff_returned(bE, J, mu, lam), AiT), ok
 

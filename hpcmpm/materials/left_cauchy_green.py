@@ -288,7 +288,7 @@ def update_state(eye, mode, b, J, Fe, Fe_prev, Lv, dt, inv_wi, sigma_y, inv_h, e
         elif mode == HB_IMPLICIT:  # b_E with det J^2 already: the rescale is round-off
             Delta = decrements[p] if known else implicit_return.decrement(
                 bn, L, dt, J[p], sigma_y, 1.0 / inv_h, eta)
-            bh, Jnew, _, _, _ = implicit_return.returned_by(bn, L, dt, J[p], Delta)
+            bh, Jnew, _, _, _ = implicit_return.returned(bn, L, dt, J[p], Delta)
         else:
             S, R, B = plastic_factors(mode, bn, bn, bn, dt, inv_wi, sigma_y, inv_h, eta)
             bh = b_hat(S, R, B, L, dt)
@@ -349,7 +349,7 @@ def implicit_energy(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, i
         L = load(Lv, p, eye)
         if mode == HB_IMPLICIT:
             if known:
-                e = implicit_return.energy_density_by(load(b, p, eye), L, dt, J[p], mu, lam,
+                e = implicit_return.energy_density(load(b, p, eye), L, dt, J[p], mu, lam,
                                                       sigma_y, 1.0 / inv_h, eta, decrements[p])
             else:
                 e, decrements[p] = implicit_return.energy_and_decrement(
@@ -379,7 +379,7 @@ def implicit_gradient(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n,
             if not known:
                 decrements[p] = implicit_return.decrement(bn, L, dt, J[p], sigma_y,
                                                           1.0 / inv_h, eta)
-            g, ok = implicit_return.gradient_point_by(bn, L, dt, J[p], mu, lam, decrements[p])
+            g, ok = implicit_return.gradient_point(bn, L, dt, J[p], mu, lam, decrements[p])
         else:
             S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
                                       load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
@@ -626,24 +626,20 @@ class LeftCauchyGreenMaterial(Material):
     def implicit_energy(self, fields, L, dt: float) -> float:
         """sum_p e_p(L_p), e_p = V0 psi(b_E(L), J(L)) + dt V0 J^n mu_N sym(L):sym(L), with the
         state at t^n in ``fields``; +inf when a J, det b_hat or tr b_hat is not positive."""
-        known = self._known_decrements(fields, L, dt)
-        hb = self.mode == HB_IMPLICIT and known is None
-        values = known if known is not None else (np.empty(len(L)) if hb else _NO_DECREMENTS)
+        values, known = self._decrement_slots(fields, L, dt)
         energy = float(implicit_energy(*self._implicit_args(fields), L, dt, *self._moduli(),
-                                       values, known is not None))
-        if hb and energy < math.inf:
+                                       values, known))
+        if not known and self.mode == HB_IMPLICIT and energy < math.inf:
             # Newton's line search ends at the point whose gradient comes next.
             self._remember_decrements(fields, L, dt, values)
         return energy
 
     def implicit_gradient(self, fields, L, dt: float, G) -> None:
         """Writes G (n, d, d), G_p = de_p/dL_p (energy x time; NaN where inadmissible)."""
-        known = self._known_decrements(fields, L, dt)
-        values = known if known is not None else (
-            np.empty(len(L)) if self.mode == HB_IMPLICIT else _NO_DECREMENTS)
+        values, known = self._decrement_slots(fields, L, dt)
         implicit_gradient(*self._implicit_args(fields), L, dt, *self._moduli(), G, values,
-                          known is not None)
-        if known is None and self.mode == HB_IMPLICIT:
+                          known)
+        if not known and self.mode == HB_IMPLICIT:
             self._remember_decrements(fields, L, dt, values)
 
     def implicit_hessian(self, fields, L, dt: float, dL, dG) -> None:
@@ -685,6 +681,15 @@ class LeftCauchyGreenMaterial(Material):
                 np.array_equal(key[2], b) and np.array_equal(key[3], J):
             return self._decrement_values
         return None
+
+    def _decrement_slots(self, fields, L, dt: float) -> tuple[np.ndarray, bool]:
+        """(decrements, known) for the energy and gradient kernels: the ones remembered at
+        this point, or an array for the kernel to solve them into (empty outside
+        HB_IMPLICIT)."""
+        known = self._known_decrements(fields, L, dt)
+        if known is not None:
+            return known, True
+        return (np.empty(len(L)) if self.mode == HB_IMPLICIT else _NO_DECREMENTS), False
 
     def _remember_decrements(self, fields, L, dt: float, values: np.ndarray) -> None:
         self._decrement_key = (dt, L.copy(), fields["b"].copy(), fields["J"].copy())
