@@ -9,14 +9,20 @@ from hpcmpm.io.frames import read_frame
 from launch import mpi_hpcmpm
 
 
-def last_frame(out: Path, steps: int, ranks: int | None = None) -> dict:
-    """The fields of the last frame in ``out``, which must be at step ``steps`` and, given
-    ``ranks``, written by one world of that many ranks (not N separate 1-rank runs)."""
+def last_frame_and_attrs(out: Path, steps: int, ranks: int | None = None):
+    """(fields, attributes) of the last frame in ``out``, which must be at step ``steps``
+    and, given ``ranks``, written by one world of that many ranks (not N separate 1-rank
+    runs)."""
     data, attrs = read_frame(sorted(out.glob("frame_*.h5"))[-1])
     assert attrs["step"] == steps
     if ranks is not None:
         assert attrs["n_ranks"] == ranks
-    return data
+    return data, attrs
+
+
+def last_frame(out: Path, steps: int, ranks: int | None = None) -> dict:
+    """The fields of the last frame in ``out`` (`last_frame_and_attrs`)."""
+    return last_frame_and_attrs(out, steps, ranks)[0]
 
 
 def hpcmpm(ranks: int, *args, timeout: float = 500, past_cfl: bool = False):

@@ -9,9 +9,8 @@ scripts/study_semi_implicit_ranks.py. A restart on the same rank count is bitwis
 import numpy as np
 import pytest
 
-from hpcmpm.io.frames import read_frame
 from launch import mpi_hpcmpm
-from scene_runs import last_frame
+from scene_runs import last_frame, last_frame_and_attrs
 
 # scene, dt, steps, overrides: small enough for CI (each mpiexec launch costs seconds).
 CASES = {
@@ -48,9 +47,7 @@ def runs(request, tmp_path_factory):
                   'output.fields=["b", "J"]', *extra]:
             args += ["--set", s]
         mpi_hpcmpm(ranks, *args, timeout=400)
-        data, attrs = read_frame(sorted(folder.glob("frame_*.h5"))[-1])
-        assert attrs["step"] == steps and attrs["n_ranks"] == ranks
-        out[ranks] = (folder, data, attrs)
+        out[ranks] = (folder, *last_frame_and_attrs(folder, steps, ranks))
     return request.param, steps, dt, out
 
 
