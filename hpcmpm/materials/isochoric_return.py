@@ -160,8 +160,9 @@ def energy_and_decrement(bn, L, dt, Jn, mu, lam, sigma_y, h, eta):
     AiT, J, bbar, X, s_tr, P, root = trial(bn, L, dt, Jn)
     if not (J > 0.0 and root > 0.0):  # NaN-safe
         return math.inf, 0.0
-    Delta = plastic_decrement(J, math.asinh(s_tr), dt, sigma_y, h, eta)
-    return energy_density(bn, L, dt, Jn, mu, lam, sigma_y, h, eta, Delta), Delta
+    delta_tr = math.asinh(s_tr)
+    Delta = plastic_decrement(J, delta_tr, dt, sigma_y, h, eta)
+    return _returned_energy(J, delta_tr, Delta, dt, mu, lam, sigma_y, h, eta), Delta
 
 
 @njit(cache=True)
@@ -171,7 +172,12 @@ def energy_density(bn, L, dt, Jn, mu, lam, sigma_y, h, eta, Delta):
     AiT, J, bbar, X, s_tr, P, root = trial(bn, L, dt, Jn)
     if not (J > 0.0 and root > 0.0):  # NaN-safe
         return math.inf
-    delta_tr = math.asinh(s_tr)
+    return _returned_energy(J, math.asinh(s_tr), Delta, dt, mu, lam, sigma_y, h, eta)
+
+
+@njit(cache=True, inline="always")
+def _returned_energy(J, delta_tr, Delta, dt, mu, lam, sigma_y, h, eta):
+    """e/V0 of the returned state from the trial's J and delta_tr and the decrement."""
     return (mu * (J * math.cosh(delta_tr - Delta) - 1.0) - mu * math.log(J)
             + 0.5 * lam * (J - 1.0) * (J - 1.0)
             + mu * dissipation(Delta, dt, sigma_y, h, eta))
