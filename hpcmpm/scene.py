@@ -137,6 +137,9 @@ class Scene:
     # Periodic axes as sorted indices (0 = x): particles leaving through one face re-enter
     # through the other, the grid wraps, the walls of those faces do not act.
     periodic: tuple[int, ...] = ()
+    # "grid": the stored J of the models that carry it is replaced by its grid average at
+    # the start of each step (hpcmpm/kernels/volume.py); "none": each particle keeps its own.
+    volume_averaging: str = "none"
 
     def material_index(self, name: str) -> int:
         return [m.name for m in self.materials].index(name)
@@ -357,7 +360,8 @@ def _entry_index(entries: list, part: str, section: str) -> tuple[int, str | Non
 # -- sections ---------------------------------------------------------------------------------
 SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "transfer",
                    "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity", "integrator",
-                   "periodic")
+                   "periodic", "volume_averaging")
+VOLUME_AVERAGING = ("none", "grid")
 SOLVER_MODES = ("linearized", "newton")
 PRECONDITIONERS = ("jacobi", "none")
 
@@ -376,7 +380,7 @@ def _simulation(c: Checker, raw: dict) -> dict:
                 "particles_per_cell": None, "kernel": None, "transfer": None,
                 "flip_alpha": None, "cfl": None, "dt": None, "max_dt": None,
                 "end_time": None, "gravity": None, "integrator": None,
-                "periodic": ()}
+                "periodic": (), "volume_averaging": None}
     c.keys(sim, "simulation", SIMULATION_KEYS)
     p = "simulation"
     out: dict[str, Any] = {}
@@ -416,6 +420,7 @@ def _simulation(c: Checker, raw: dict) -> dict:
     from .solvers import INTEGRATORS
 
     out["integrator"] = c.string(sim, "integrator", p, "explicit", tuple(INTEGRATORS))
+    out["volume_averaging"] = c.string(sim, "volume_averaging", p, "none", VOLUME_AVERAGING)
     if out["dx"] and lo and hi:
         cells = [(h - l) / out["dx"] for l, h in zip(lo, hi)]
         extents = [h - l for l, h in zip(lo, hi)]
@@ -482,10 +487,12 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
 
 
 def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
-                         transfer, prescribed, integrator, dim) -> None:
+                         transfer, prescribed, integrator, dim, volume_averaging) -> None:
     """Each requested field must exist in this scene's particles (the writer would skip it
     silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
-    what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
+    what the run allocates), or ``tau``, the Kirchhoff stress computed for output. Also,
+    from the same material instances: ``volume_averaging = "grid"`` needs a material whose
+    J it averages."""
     from .materials import make_material
     from .materials.failure import failure_scene_problems
     from .simulation import deformation_mode, particle_field_specs
@@ -510,6 +517,12 @@ def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_co
     for key, what in failure_scene_problems(instances, transfer, integrator):
         c.problem(key, what)
     mode = deformation_mode(instances, INTEGRATORS[integrator].needs_velocity_gradient)
+    if volume_averaging == "grid" and not any(m.on_grid and m.averages_volume(mode)
+                                              for m in instances):
+        c.problem("simulation.volume_averaging",
+                  "'grid' averages the stored J of oldroyd_b, herschel_bulkley, von_mises "
+                  "and weakly_compressible (when no material needs F); no material of this "
+                  "scene carries one")
     valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, transfer,
                                                           bool(prescribed))) + ["tau"]
     for i, name in enumerate(output.fields):
@@ -827,7 +840,8 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     entries = raw.get("materials")
     _check_output_fields(c, output, materials,
                          isinstance(entries, list) and len(entries) == len(materials),
-                         sim["transfer"], prescribed, sim["integrator"], sim["dim"])
+                         sim["transfer"], prescribed, sim["integrator"], sim["dim"],
+                         sim["volume_averaging"])
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)

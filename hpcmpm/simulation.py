@@ -19,6 +19,7 @@ from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
 from .kernels.shape import ORDERS, inverse_inertia_factor
 from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCATTER_FORCES, SCHEMES, static
+from .kernels.volume import GATHER_VOLUME, SCATTER_VOLUME, nodal_average
 from .materials import Material, make_material
 from .solvers import make_integrator
 from .state import (DEFORMATION_FIELDS, SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock,
@@ -148,6 +149,15 @@ class Simulation:
         self._all_on_grid = len(self._on_grid) == len(self.materials)
         self._state_groups = [g for g in self._on_grid
                               if self.deformation == "L" or self.materials[g].updates_state]
+        # simulation.volume_averaging = "grid": the materials whose stored J is averaged
+        # through the grid at the start of each step (`average_volumes`); none by default,
+        # and then no grid field or phase exists for it.
+        self._volume_groups = [g for g in self._on_grid
+                               if getattr(scene, "volume_averaging", "none") == "grid"
+                               and self.materials[g].averages_volume(self.deformation)]
+        if self._volume_groups:
+            self.grid.declare("volume_mass", SCALAR)
+            self.grid.declare("volume_J", SCALAR)
         self._state_dependent_speed = any(
             type(m).max_wave_speed is not Material.max_wave_speed for m in self.materials)
         # Step extensions (peridynamics, SPB): objects with optional `particle_forces(sim,
@@ -245,6 +255,38 @@ class Simulation:
         """Size the grid block to this step's support and zero it."""
         with self.phase("p2g"):
             self.grid.fit(*self.domain.grid_box(self.particles, self.order))
+
+    def average_volumes(self) -> None:
+        """``simulation.volume_averaging = "grid"``: after `fit_grid`, replace the stored J of
+        the averaging materials' particles by its mass-weighted grid average at x^n
+        (hpcmpm/kernels/volume.py), so this step's stress (or solve) reads it. A no-op
+        without it."""
+        if not self._volume_groups:
+            return
+        p, grid = self.particles, self.grid
+        with self.phase("volume"):
+            x, mass, J = p["x"], p["mass"], p["J"]
+            for g in self._volume_groups:
+                start, stop = self.group_slices[g]
+                if stop > start:
+                    SCATTER_VOLUME[self.dim](x[start:stop], mass[start:stop], J[start:stop],
+                                             self._static_order, self.dx, self.domain_lo,
+                                             grid.origin, grid["volume_mass"],
+                                             grid["volume_J"])
+        with self.phase("halo"):
+            self.domain.sum_ghosts_to_owners(grid, "volume_mass", "volume_J")
+        with self.phase("volume"):
+            # Complete on owned nodes after the sum; ghost copies are overwritten below.
+            nodal_average(grid["volume_mass"].reshape(-1), grid["volume_J"].reshape(-1))
+        with self.phase("halo"):
+            self.domain.fill_ghosts(grid, "volume_J")
+        with self.phase("volume"):
+            for g in self._volume_groups:
+                start, stop = self.group_slices[g]
+                if stop > start:
+                    GATHER_VOLUME[self.dim](x[start:stop], self._static_order, self.dx,
+                                            self.domain_lo, grid.origin, grid["volume_J"],
+                                            J[start:stop])
 
     def sum_ghosts(self) -> None:
         """After P2G: partial sums on other ranks' nodes go to their owners."""

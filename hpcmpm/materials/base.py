@@ -104,6 +104,12 @@ class Material:
         bonds), for the start-up memory estimate; 0 by default. Call after `configure`."""
         return 0
 
+    def averages_volume(self, deformation: str) -> bool:
+        """Whether ``simulation.volume_averaging`` averages this model's particles: their
+        stored J is the volume state the stress reads (hpcmpm/kernels/volume.py). False by
+        default; ``deformation`` is the scene's mode (`deformation_mode`)."""
+        return False
+
     @property
     def volumetric(self) -> bool:
         return self.deformation == "J"

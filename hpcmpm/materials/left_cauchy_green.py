@@ -556,6 +556,11 @@ class LeftCauchyGreenMaterial(Material):
         checks its relaxation update against the time step and the integrator)."""
         return []
 
+    def averages_volume(self, deformation: str) -> bool:
+        """J is state apart from b: its grid average keeps b_E = (J^2/det b)^(1/d) b (the
+        stress, the energy and the isochoric return read b only through its shape)."""
+        return True
+
     def configure(self, scene) -> None:
         """Raises SceneError, one line per problem as "{file}: materials[i].key: ...", when
         this material cannot run in ``scene`` (`run_problems`)."""

@@ -133,6 +133,10 @@ class WeaklyCompressible(Material):
         self._forget_shear = _forget_shear_2d if dim == 2 else _forget_shear_3d
         self._energy = _energy_2d if dim == 2 else _energy_3d
 
+    def averages_volume(self, deformation: str) -> bool:
+        """When the scene carries J alone (not F = J^(1/d) I)."""
+        return deformation == "J"
+
     def return_map(self, fields, dt: float) -> None:
         """In a scene that carries F, reset F to J^(1/d) I after G2P advanced it."""
         if "F" in fields:

@@ -21,6 +21,7 @@ class ExplicitIntegrator:
         if sim.forcing is not None:
             sim.forcing(sim, dt)  # body force as a particle impulse (manufactured solutions)
         sim.fit_grid()
+        sim.average_volumes()  # simulation.volume_averaging: J <- its grid average at x^n
         sim.scatter_stress(dt)  # per chunk: Kirchhoff stress, then P2G of m, mv, dt f (eq. 3.1)
         sim.scatter_forces(dt)  # extensions' particle forces (integral-based MPM, 003 eq. 5.2)
         sim.sum_ghosts()

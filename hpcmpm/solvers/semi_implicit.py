@@ -142,6 +142,7 @@ class SemiImplicitIntegrator:
         if sim.forcing is not None:
             sim.forcing(sim, dt)
         sim.fit_grid()
+        sim.average_volumes()  # simulation.volume_averaging: J <- its grid average at x^n
         sim.scatter_mass_momentum()  # m_i, m_i v_i^n (000 §3.4); no stress: the solve has it
         sim.scatter_forces(dt)  # extensions' particle forces, explicit
         sim.sum_ghosts()

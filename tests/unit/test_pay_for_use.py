@@ -73,6 +73,22 @@ def test_a_fluid_only_scene_carries_J_instead_of_F_and_matches_the_F_path(monkey
     assert np.abs(J_ref - 1.0).max() > 1e-3  # the check is not vacuous: the fluid compressed
 
 
+def test_volume_averaging_costs_nothing_unless_asked_for():
+    """Without ``volume_averaging`` a J-carrying fluid gets no averaging grid fields and runs
+    no averaging phase; with it, both, and the average acts (J differs)."""
+    sets = ["simulation.end_time=0.02"]
+    plain = simulate(load_scene("inputs/dam_break_2d.toml", sets))
+    assert not {"volume_mass", "volume_J"} & set(plain.grid.fields)
+    assert "volume" not in plain.timers.calls
+    averaged = simulate(load_scene("inputs/dam_break_2d.toml",
+                                   sets + ['simulation.volume_averaging="grid"']))
+    assert {"volume_mass", "volume_J"} <= set(averaged.grid.fields)
+    assert averaged.timers.calls["volume"] >= averaged.step_index > 5
+    a = np.argsort(plain.particles["id"])
+    b = np.argsort(averaged.particles["id"])
+    assert np.abs(plain.particles["J"][a] - averaged.particles["J"][b]).max() > 1e-6
+
+
 def test_a_fluid_beside_a_solid_keeps_F_and_stays_isotropic():
     """One material that needs F puts the whole scene on the F path; the fluid's particles
     then carry F, which its state update resets to sqrt(J) I after each G2P."""

@@ -74,6 +74,17 @@ CASES = {
     "unknown_transfer": (GOOD.replace('transfer = "mls"', 'transfer = "apik"'),
                          "simulation.transfer: unknown value 'apik' (did you mean 'apic'? "
                          "valid: pic, flip, apic, mls)"),
+    "unknown_volume_averaging": (GOOD.replace("[simulation]",
+                                              '[simulation]\nvolume_averaging = "grids"'),
+                                 "simulation.volume_averaging: unknown value 'grids' (did you "
+                                 "mean 'grid'? valid: none, grid)"),
+    # disks_2d's material is neo-Hookean: it carries F, no J to average.
+    "volume_averaging_without_J": (GOOD.replace("[simulation]",
+                                                '[simulation]\nvolume_averaging = "grid"'),
+                                   "simulation.volume_averaging: 'grid' averages the stored J "
+                                   "of oldroyd_b, herschel_bulkley, von_mises and "
+                                   "weakly_compressible (when no material needs F); no "
+                                   "material of this scene carries one"),
     "unknown_material_type": (GOOD.replace('type = "neo_hookean"', 'type = "neo_hooke"'),
                               "materials[0].type: unknown value 'neo_hooke' (did you mean "
                               f"'neo_hookean'? valid: {', '.join(sorted(MATERIALS))})"),
@@ -226,6 +237,7 @@ def test_dataclasses_and_defaults():
 
 def test_periodic_axes_are_sorted_indices_and_default_to_none():
     assert parse_scene(GOOD).periodic == ()
+    assert parse_scene(GOOD).volume_averaging == "none"
     scene = parse_scene(GOOD_3D.replace("[simulation]", '[simulation]\nperiodic = ["y", "x"]'))
     assert scene.periodic == (0, 1)
     assert parse_scene(scene.text) == scene  # the resolved text keeps the key
