@@ -137,8 +137,8 @@ class Scene:
     # Periodic axes as sorted indices (0 = x): particles leaving through one face re-enter
     # through the other, the grid wraps, the walls of those faces do not act.
     periodic: tuple[int, ...] = ()
-    # "grid": the stored J of the models that carry it is replaced by its grid average at
-    # the start of each step (hpcmpm/kernels/volume.py); "none": each particle keeps its own.
+    # "increment": each step's change of the stored J of the models that carry it becomes
+    # its grid average (hpcmpm/kernels/volume.py); "none": each particle keeps its own.
     volume_averaging: str = "none"
 
     def material_index(self, name: str) -> int:
@@ -361,7 +361,7 @@ def _entry_index(entries: list, part: str, section: str) -> tuple[int, str | Non
 SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "transfer",
                    "flip_alpha", "cfl", "dt", "max_dt", "end_time", "gravity", "integrator",
                    "periodic", "volume_averaging")
-VOLUME_AVERAGING = ("none", "grid")
+VOLUME_AVERAGING = ("none", "increment")
 SOLVER_MODES = ("linearized", "newton")
 PRECONDITIONERS = ("jacobi", "none")
 
@@ -491,7 +491,7 @@ def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_co
     """Each requested field must exist in this scene's particles (the writer would skip it
     silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
     what the run allocates), or ``tau``, the Kirchhoff stress computed for output. Also,
-    from the same material instances: ``volume_averaging = "grid"`` needs a material whose
+    from the same material instances: ``volume_averaging = "increment"`` needs a material whose
     J it averages."""
     from .materials import make_material
     from .materials.failure import failure_scene_problems
@@ -517,12 +517,13 @@ def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_co
     for key, what in failure_scene_problems(instances, transfer, integrator):
         c.problem(key, what)
     mode = deformation_mode(instances, INTEGRATORS[integrator].needs_velocity_gradient)
-    if volume_averaging == "grid" and not any(m.on_grid and m.averages_volume(mode)
+    if volume_averaging not in (None, "none") and not any(m.on_grid and m.averages_volume(mode)
                                               for m in instances):
         c.problem("simulation.volume_averaging",
-                  "'grid' averages the stored J of oldroyd_b, herschel_bulkley, von_mises "
-                  "and weakly_compressible (when no material needs F); no material of this "
-                  "scene carries one")
+                  f"{volume_averaging!r} averages the stored J of oldroyd_b, herschel_bulkley, "
+                  "von_mises and weakly_compressible (unless it carries F, beside an F-based "
+                  "material with the explicit integrator); no material of this scene carries "
+                  "one")
     valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, transfer,
                                                           bool(prescribed))) + ["tau"]
     for i, name in enumerate(output.fields):

@@ -19,7 +19,7 @@ from .kernels.particles import (cell_sort_keys, counting_sort_order,
                                 momentum_and_kinetic_energy, scan_health)
 from .kernels.shape import ORDERS, inverse_inertia_factor
 from .kernels.transfer import APIC, FLIP, GATHER, SCATTER, SCATTER_FORCES, SCHEMES, static
-from .kernels.volume import GATHER_VOLUME, SCATTER_VOLUME, nodal_average
+from .kernels.volume import GATHER_VOLUME, SCATTER_VOLUME, nodal_ratio
 from .materials import Material, make_material
 from .solvers import make_integrator
 from .state import (DEFORMATION_FIELDS, SCALAR, TENSOR, VECTOR, FieldSpec, GridBlock,
@@ -149,15 +149,17 @@ class Simulation:
         self._all_on_grid = len(self._on_grid) == len(self.materials)
         self._state_groups = [g for g in self._on_grid
                               if self.deformation == "L" or self.materials[g].updates_state]
-        # simulation.volume_averaging = "grid": the materials whose stored J is averaged
-        # through the grid at the start of each step (`average_volumes`); none by default,
-        # and then no grid field or phase exists for it.
+        # simulation.volume_averaging = "increment": the materials whose change of J over
+        # each step is averaged through the grid (`remember_volumes`, `average_volumes`);
+        # none by default, and then no grid field, scratch array or phase exists for it.
         self._volume_groups = [g for g in self._on_grid
-                               if getattr(scene, "volume_averaging", "none") == "grid"
+                               if getattr(scene, "volume_averaging", "none") != "none"
                                and self.materials[g].averages_volume(self.deformation)]
+        self._x_old = np.empty((0, self.dim))
+        self._J_old = np.empty(0)
         if self._volume_groups:
-            self.grid.declare("volume_mass", SCALAR)
-            self.grid.declare("volume_J", SCALAR)
+            self.grid.declare("volume_old", SCALAR)
+            self.grid.declare("volume_new", SCALAR)
         self._state_dependent_speed = any(
             type(m).max_wave_speed is not Material.max_wave_speed for m in self.materials)
         # Step extensions (peridynamics, SPB): objects with optional `particle_forces(sim,
@@ -256,37 +258,47 @@ class Simulation:
         with self.phase("p2g"):
             self.grid.fit(*self.domain.grid_box(self.particles, self.order))
 
+    def remember_volumes(self) -> None:
+        """``simulation.volume_averaging``, before G2P: keep x^n and J^n (G2P moves x, and
+        advances J in mode J) for `average_volumes`. A no-op without it."""
+        if not self._volume_groups:
+            return
+        with self.phase("volume"):
+            p = self.particles
+            if len(self._J_old) < p.n:
+                self._x_old = np.empty((p.capacity, self.dim))
+                self._J_old = np.empty(p.capacity)
+            self._x_old[: p.n] = p["x"]
+            self._J_old[: p.n] = p["J"]
+
     def average_volumes(self) -> None:
-        """``simulation.volume_averaging = "grid"``: after `fit_grid`, replace the stored J of
-        the averaging materials' particles by its mass-weighted grid average at x^n
-        (hpcmpm/kernels/volume.py), so this step's stress (or solve) reads it. A no-op
-        without it."""
+        """``simulation.volume_averaging``, after the state update: the averaging materials'
+        change of J over the step becomes its grid average at x^n
+        (hpcmpm/kernels/volume.py). A no-op without it."""
         if not self._volume_groups:
             return
         p, grid = self.particles, self.grid
+        slices = [self.group_slices[g] for g in self._volume_groups]
+        slices = [(start, stop) for start, stop in slices if stop > start]
+        x_old, J_old, mass, J = self._x_old, self._J_old, p["mass"], p["J"]
         with self.phase("volume"):
-            x, mass, J = p["x"], p["mass"], p["J"]
-            for g in self._volume_groups:
-                start, stop = self.group_slices[g]
-                if stop > start:
-                    SCATTER_VOLUME[self.dim](x[start:stop], mass[start:stop], J[start:stop],
-                                             self._static_order, self.dx, self.domain_lo,
-                                             grid.origin, grid["volume_mass"],
-                                             grid["volume_J"])
+            for start, stop in slices:
+                SCATTER_VOLUME[self.dim](x_old[start:stop], mass[start:stop],
+                                         J_old[start:stop], J[start:stop], self._static_order,
+                                         self.dx, self.domain_lo, grid.origin,
+                                         grid["volume_old"], grid["volume_new"])
         with self.phase("halo"):
-            self.domain.sum_ghosts_to_owners(grid, "volume_mass", "volume_J")
+            self.domain.sum_ghosts_to_owners(grid, "volume_old", "volume_new")
         with self.phase("volume"):
             # Complete on owned nodes after the sum; ghost copies are overwritten below.
-            nodal_average(grid["volume_mass"].reshape(-1), grid["volume_J"].reshape(-1))
+            nodal_ratio(grid["volume_old"].reshape(-1), grid["volume_new"].reshape(-1))
         with self.phase("halo"):
-            self.domain.fill_ghosts(grid, "volume_J")
+            self.domain.fill_ghosts(grid, "volume_new")
         with self.phase("volume"):
-            for g in self._volume_groups:
-                start, stop = self.group_slices[g]
-                if stop > start:
-                    GATHER_VOLUME[self.dim](x[start:stop], self._static_order, self.dx,
-                                            self.domain_lo, grid.origin, grid["volume_J"],
-                                            J[start:stop])
+            for start, stop in slices:
+                GATHER_VOLUME[self.dim](x_old[start:stop], J_old[start:stop],
+                                        self._static_order, self.dx, self.domain_lo,
+                                        grid.origin, grid["volume_new"], J[start:stop])
 
     def sum_ghosts(self) -> None:
         """After P2G: partial sums on other ranks' nodes go to their owners."""

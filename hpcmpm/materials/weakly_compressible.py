@@ -134,8 +134,9 @@ class WeaklyCompressible(Material):
         self._energy = _energy_2d if dim == 2 else _energy_3d
 
     def averages_volume(self, deformation: str) -> bool:
-        """When the scene carries J alone (not F = J^(1/d) I)."""
-        return deformation == "J"
+        """When its particles carry J: mode J, or mode L (the velocity gradient advances J);
+        not mode F, where it carries F = J^(1/d) I beside an F-based material."""
+        return deformation in ("J", "L")
 
     def return_map(self, fields, dt: float) -> None:
         """In a scene that carries F, reset F to J^(1/d) I after G2P advanced it."""

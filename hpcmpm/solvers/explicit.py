@@ -21,14 +21,15 @@ class ExplicitIntegrator:
         if sim.forcing is not None:
             sim.forcing(sim, dt)  # body force as a particle impulse (manufactured solutions)
         sim.fit_grid()
-        sim.average_volumes()  # simulation.volume_averaging: J <- its grid average at x^n
         sim.scatter_stress(dt)  # per chunk: Kirchhoff stress, then P2G of m, mv, dt f (eq. 3.1)
         sim.scatter_forces(dt)  # extensions' particle forces (integral-based MPM, 003 eq. 5.2)
         sim.sum_ghosts()
         sim.update_grid(dt)  # v_i = (p_i + dt f_i)/m_i + dt g, then boundaries
         sim.fill_ghosts()
+        sim.remember_volumes()  # volume_averaging: x^n, J^n for the average below
         sim.gather(dt)  # v, C, x <- x + dt v; F <- (I + dt L) F, or L stored (eq. 3.7)
         sim.update_states(dt)  # plastic return maps, rate-dependent state over this dt
+        sim.average_volumes()  # volume_averaging: the step's change of J, grid-averaged
         sim.after_g2p(dt)  # extensions (peridynamic bodies, 003 Alg. 2)
         sim.migrate()
 

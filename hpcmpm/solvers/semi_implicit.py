@@ -142,14 +142,15 @@ class SemiImplicitIntegrator:
         if sim.forcing is not None:
             sim.forcing(sim, dt)
         sim.fit_grid()
-        sim.average_volumes()  # simulation.volume_averaging: J <- its grid average at x^n
         sim.scatter_mass_momentum()  # m_i, m_i v_i^n (000 §3.4); no stress: the solve has it
         sim.scatter_forces(dt)  # extensions' particle forces, explicit
         sim.sum_ghosts()
         self.solve(sim, dt)  # v_hat = argmin E (000 §5.5), into grid "velocity"
         sim.fill_ghosts()
+        sim.remember_volumes()  # volume_averaging: x^n, J^n for the average below
         sim.gather(dt)  # v, C, x <- x + dt v; L_p = sum_i v_i grad w_ip^T stored
         sim.update_states(dt)  # b_E / F from L over dt, plastic flow with the same L
+        sim.average_volumes()  # volume_averaging: the step's change of J, grid-averaged
         sim.after_g2p(dt)
         sim.migrate()
 

@@ -1,7 +1,8 @@
-"""``simulation.volume_averaging = "grid"`` (hpcmpm/kernels/volume.py): the engine's average
-through the distributed grid equals a one-process average written here from the B-spline
-formula, on 1, 2 and 4 ranks, in 2D and 3D, on a periodic axis too; it conserves the total
-volume sum_p m_p J_p and keeps a uniform J."""
+"""``simulation.volume_averaging = "increment"`` (hpcmpm/kernels/volume.py): the engine's average
+of the step's change of J through the distributed grid equals a one-process average written
+here from the B-spline formula, on 1, 2 and 4 ranks, in 2D and 3D, on a periodic axis too; it
+conserves the total volume sum_p m_p J_p, keeps a uniform ratio and a state at rest, keeps a
+linear J inside a regular lattice, and leaves a non-finite J and other materials alone."""
 
 import numpy as np
 import pytest
@@ -48,7 +49,7 @@ dx = {0.0625 if dim == 2 else 0.125}
 particles_per_cell = 2
 kernel = "{kernel}"
 end_time = 1.0
-volume_averaging = "grid"
+volume_averaging = "increment"
 {'periodic = ["x"]' if periodic else ''}
 {MATERIAL}
 [[bodies]]
@@ -82,9 +83,9 @@ def weights_1d(xi: np.ndarray, order: int):
     return base, w
 
 
-def reference_average(x, mass, J, dx, order, dim, periodic_cells):
-    """J_p <- sum_i w_ip (sum_q w_iq m_q J_q / sum_q w_iq m_q) over all particles at once;
-    nodes along a periodic axis wrap modulo its cell count."""
+def reference_average(x, mass, J_old, J_new, dx, order, dim, periodic_cells):
+    """J_p^n sum_i w_ip r_i, r_i = sum_q w_iq m_q J_q^{n+1} / sum_q w_iq m_q J_q^n, over all
+    particles at once; nodes along a periodic axis wrap modulo its cell count."""
     bases, ws = zip(*(weights_1d(x[:, a] / dx, order) for a in range(dim)))
     s = order + 1
     nodes, w = [], []
@@ -97,13 +98,25 @@ def reference_average(x, mass, J, dx, order, dim, periodic_cells):
     keys = np.concatenate(nodes)
     unique, inverse = np.unique(keys, axis=0, return_inverse=True)
     inverse = inverse.reshape(len(nodes), len(x))
-    m = np.zeros(len(unique))
-    mj = np.zeros(len(unique))
+    old = np.zeros(len(unique))
+    new = np.zeros(len(unique))
     for k in range(len(nodes)):
-        np.add.at(m, inverse[k], w[k] * mass)
-        np.add.at(mj, inverse[k], w[k] * mass * J)
-    Ji = mj / m
-    return sum(w[k] * Ji[inverse[k]] for k in range(len(nodes)))
+        np.add.at(old, inverse[k], w[k] * mass * J_old)
+        np.add.at(new, inverse[k], w[k] * mass * J_new)
+    r = new / old
+    return J_old * sum(w[k] * r[inverse[k]] for k in range(len(nodes)))
+
+
+def averaged(sim, J_new) -> dict:
+    """One average as the step runs it: x^n, J^n kept, J^{n+1} = J_new(particles) set as the
+    state update would, then the average; every rank's particles by id."""
+    p = sim.particles
+    sim.sort_phase()
+    sim.fit_grid()
+    sim.remember_volumes()
+    p["J"][:] = J_new(p)
+    sim.average_volumes()
+    return gather_by_id(sim.domain, p)
 
 
 def check(dim: int, kernel: str, periodic: bool) -> None:
@@ -111,34 +124,82 @@ def check(dim: int, kernel: str, periodic: bool) -> None:
     sim = Simulation(scene, make_domain(scene, Communicator()))
     initial_particles(sim)
     p = sim.particles
-    # A J that varies by particle (by id: the same on every rank count), 0.7 .. 1.3.
+    # J^n and J^{n+1} that vary by particle (by id: the same on every rank count).
     p["J"][:] = 1.0 + 0.3 * np.sin(0.7 * p["id"] + 0.1 * p["id"] ** 1.5)
     before = gather_by_id(sim.domain, p)
-    sim.sort_phase()
-    sim.fit_grid()
-    sim.average_volumes()
-    after = gather_by_id(sim.domain, p)
+    change = lambda q: q["J"] * (1.0 + 0.2 * np.cos(1.3 * q["id"]))  # noqa: E731
+    after = averaged(sim, change)
     paste = before["group"] == 0
     assert paste.sum() > 100 and (~paste).sum() > 50
-    # The other material is untouched, to the bit.
-    assert np.array_equal(after["J"][~paste], before["J"][~paste])
+    # The other material keeps its own new J, to the bit.
+    assert np.array_equal(after["J"][~paste], change(before)[~paste])
     order = 2 if kernel == "quadratic" else 3
     cells = int(round(1.0 / sim.dx)) if periodic else 0
+    J_new = change(before)[paste]
     expected = reference_average(before["x"][paste], before["mass"][paste],
-                                 before["J"][paste], sim.dx, order, dim, cells)
+                                 before["J"][paste], J_new, sim.dx, order, dim, cells)
     # Sums of <= 64 positive terms per node and per particle, in another order: round-off.
     np.testing.assert_allclose(after["J"][paste], expected, rtol=1e-13, atol=0)
-    # Not the identity: the average moves J by a sizeable fraction of its 0.3 spread.
-    assert np.abs(after["J"][paste] - before["J"][paste]).max() > 0.05
-    # Total volume: sum_p m_p J_p is conserved (partition of unity), to round-off.
+    # Not the identity: the average moves J by a sizeable fraction of the 0.2 change.
+    assert np.abs(after["J"][paste] - J_new).max() > 0.05
+    # Total volume: sum_p m_p J_p^{n+1} is conserved (partition of unity), to round-off.
     m = before["mass"][paste]
-    assert np.sum(m * after["J"][paste]) == pytest.approx(np.sum(m * before["J"][paste]),
-                                                          rel=1e-13)
-    # A uniform J is kept: every J_p is a convex combination of nodal averages of 1.25.
-    p["J"][p["group"] == 0] = 1.25
-    sim.fit_grid()
-    sim.average_volumes()
-    np.testing.assert_allclose(p["J"][p["group"] == 0], 1.25, rtol=1e-14, atol=0)
+    assert np.sum(m * after["J"][paste]) == pytest.approx(np.sum(m * J_new), rel=1e-13)
+    # A uniform ratio is kept (every r_i is 1.25), and so is a state at rest.
+    start = gather_by_id(sim.domain, p)["J"]
+    again = averaged(sim, lambda q: 1.25 * q["J"])
+    np.testing.assert_allclose(again["J"], 1.25 * start, rtol=1e-14, atol=0)
+    still = averaged(sim, lambda q: q["J"])
+    np.testing.assert_allclose(still["J"], again["J"], rtol=1e-14, atol=0)
+    # A particle whose new J is not finite neither spreads nor changes.
+    bad = int(before["id"][paste][len(J_new) // 2])
+    broken = averaged(sim, lambda q: np.where(q["id"] == bad, np.nan, q["J"]))
+    assert np.isnan(broken["J"][broken["id"] == bad]).all()
+    assert np.isfinite(np.delete(broken["J"], np.flatnonzero(broken["id"] == bad))).all()
+
+
+def check_linear_field(dim: int, kernel: str) -> None:
+    """From J^n = 1, a new J linear in x on a regular lattice (no jitter) is kept exactly
+    away from the body's faces: the nodal mass-weighted average of a linear field is its value at the particles'
+    centroid about the node, which is the node where the lattice is symmetric about it, and
+    the B-splines reproduce linear fields (linear completeness)."""
+    dx = 1.0 / 16
+    zeros, ones = ", ".join(["0.0"] * dim), ", ".join(["1.0"] * dim)
+    text = f"""
+[simulation]
+dim = {dim}
+domain = {{ lower = [{zeros}], upper = [{ones}] }}
+dx = {dx}
+particles_per_cell = 2
+kernel = "{kernel}"
+end_time = 1.0
+volume_averaging = "increment"
+{MATERIAL}
+[[bodies]]
+name = "paste"
+material = "paste"
+shape = "box"
+lower = [{", ".join(["0.125"] * dim)}]
+upper = [{", ".join(["0.875"] * dim)}]
+"""
+    scene = parse_scene(text, path=f"linear_{dim}d.toml")
+    sim = Simulation(scene, make_domain(scene, Communicator()))
+    initial_particles(sim)
+    p = sim.particles
+    gradient = np.array([0.1, -0.05, 0.03][:dim])
+    p["J"][:] = 1.0
+    after = averaged(sim, lambda q: 1.0 + q["x"] @ gradient)
+    x = after["x"]
+    # Exact where every node of the particle's stencil has a symmetric lattice about it:
+    # 1.5 + 1.5 cells from the faces (quadratic), 2 + 2 (cubic).
+    reach = (3.0 if kernel == "quadratic" else 4.0) * dx
+    inside = np.all((x > 0.125 + reach) & (x < 0.875 - reach), axis=1)
+    assert inside.sum() >= 8 ** dim
+    # Round-off of sums of O(1) terms.
+    np.testing.assert_allclose(after["J"][inside], 1.0 + x[inside] @ gradient, rtol=0,
+                               atol=1e-14)
+    # Not vacuous: at the faces the one-sided average moves J.
+    assert np.abs(after["J"][~inside] - 1.0 - x[~inside] @ gradient).max() > 1e-4
 
 
 @pytest.mark.parallel(ranks=[1, 2, 4])
@@ -147,3 +208,5 @@ def test_grid_average_of_J_equals_one_process_reference():
     for dim, kernel, periodic in ((2, "quadratic", False), (2, "cubic", True),
                                   (3, "quadratic", True), (3, "cubic", False)):
         check(dim, kernel, periodic)
+    for dim, kernel in ((2, "quadratic"), (3, "cubic")):
+        check_linear_field(dim, kernel)

@@ -78,11 +78,12 @@ def test_volume_averaging_costs_nothing_unless_asked_for():
     no averaging phase; with it, both, and the average acts (J differs)."""
     sets = ["simulation.end_time=0.02"]
     plain = simulate(load_scene("inputs/dam_break_2d.toml", sets))
-    assert not {"volume_mass", "volume_J"} & set(plain.grid.fields)
+    assert not {"volume_old", "volume_new"} & set(plain.grid.fields)
     assert "volume" not in plain.timers.calls
+    assert len(plain._x_old) == 0 and len(plain._J_old) == 0  # no scratch copies either
     averaged = simulate(load_scene("inputs/dam_break_2d.toml",
-                                   sets + ['simulation.volume_averaging="grid"']))
-    assert {"volume_mass", "volume_J"} <= set(averaged.grid.fields)
+                                   sets + ['simulation.volume_averaging="increment"']))
+    assert {"volume_old", "volume_new"} <= set(averaged.grid.fields)
     assert averaged.timers.calls["volume"] >= averaged.step_index > 5
     a = np.argsort(plain.particles["id"])
     b = np.argsort(averaged.particles["id"])

@@ -75,15 +75,16 @@ CASES = {
                          "simulation.transfer: unknown value 'apik' (did you mean 'apic'? "
                          "valid: pic, flip, apic, mls)"),
     "unknown_volume_averaging": (GOOD.replace("[simulation]",
-                                              '[simulation]\nvolume_averaging = "grids"'),
-                                 "simulation.volume_averaging: unknown value 'grids' (did you "
-                                 "mean 'grid'? valid: none, grid)"),
+                                              '[simulation]\nvolume_averaging = "increments"'),
+                                 "simulation.volume_averaging: unknown value 'increments' (did "
+                                 "you mean 'increment'? valid: none, increment)"),
     # disks_2d's material is neo-Hookean: it carries F, no J to average.
     "volume_averaging_without_J": (GOOD.replace("[simulation]",
-                                                '[simulation]\nvolume_averaging = "grid"'),
-                                   "simulation.volume_averaging: 'grid' averages the stored J "
-                                   "of oldroyd_b, herschel_bulkley, von_mises and "
-                                   "weakly_compressible (when no material needs F); no "
+                                                '[simulation]\nvolume_averaging = "increment"'),
+                                   "simulation.volume_averaging: 'increment' averages the "
+                                   "stored J of oldroyd_b, herschel_bulkley, von_mises and "
+                                   "weakly_compressible (unless it carries F, beside an "
+                                   "F-based material with the explicit integrator); no "
                                    "material of this scene carries one"),
     "unknown_material_type": (GOOD.replace('type = "neo_hookean"', 'type = "neo_hooke"'),
                               "materials[0].type: unknown value 'neo_hooke' (did you mean "
