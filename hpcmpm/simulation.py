@@ -280,10 +280,10 @@ class Simulation:
         p, grid = self.particles, self.grid
         slices = [self.group_slices[g] for g in self._volume_groups]
         slices = [(start, stop) for start, stop in slices if stop > start]
-        x_old, J_old, mass, J = self._x_old, self._J_old, p["mass"], p["J"]
+        x_old, J_old, vol0, J = self._x_old, self._J_old, p["vol0"], p["J"]
         with self.phase("volume"):
             for start, stop in slices:
-                SCATTER_VOLUME[self.dim](x_old[start:stop], mass[start:stop],
+                SCATTER_VOLUME[self.dim](x_old[start:stop], vol0[start:stop],
                                          J_old[start:stop], J[start:stop], self._static_order,
                                          self.dx, self.domain_lo, grid.origin,
                                          grid["volume_old"], grid["volume_new"])

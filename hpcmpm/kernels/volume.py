@@ -3,15 +3,17 @@
 Each step's change of a particle's volume ratio J is replaced by its grid average. With J^n
 and x^n kept before G2P and J^{n+1} the materials' state after the step,
 
-    r_i = sum_p w_ip m_p J_p^{n+1} / sum_p w_ip m_p J_p^n,      J_p^{n+1} <- J_p^n sum_i w_ip r_i,
+    r_i = sum_p w_ip V0_p J_p^{n+1} / sum_p w_ip V0_p J_p^n,    J_p^{n+1} <- J_p^n sum_i w_ip r_i,
 
-with the weights of the step's P2G (at x^n). r_i is the node's ratio of new to old volume,
+with the weights of the step's P2G (at x^n) and V0_p the initial volume, so V0_p J_p is the
+particle's volume and r_i the node's ratio of new to old volume, whatever the materials'
+densities,
 so the average acts on the increment: a state at rest (J^{n+1} = J^n) is kept exactly, and
 particle-scale noise in det(I + dt L_p) is removed before it accumulates. It is the nodal
 averaging of the volumetric deformation that MPM codes use against volumetric locking and
 pressure noise (the F-bar of Coombs, Charlton, Cortis & Augarde 2018, on the increment of a
-stored J). It conserves the total volume: sum_p m_p J_p^n sum_i w_ip r_i =
-sum_i r_i sum_p w_ip m_p J_p^n = sum_p m_p J_p^{n+1}; a uniform ratio is kept to round-off.
+stored J). It conserves the total volume: sum_p V0_p J_p^n sum_i w_ip r_i =
+sum_i r_i sum_p w_ip V0_p J_p^n = sum_p V0_p J_p^{n+1}; a uniform ratio is kept to round-off.
 
 A particle whose new J is not finite (an inadmissible state the health check reports next)
 neither contributes nor is changed, so the report names it and not its neighbours.
@@ -58,8 +60,8 @@ def _stencil_3d(x, p, order, inv_dx, domain_lo, origin):
 
 
 @njit(cache=True)
-def scatter_volume_2d(x, mass, J_old, J_new, order, dx, domain_lo, origin, grid_old, grid_new):
-    """grid_old += sum_p w_ip m_p J_p^n, grid_new += sum_p w_ip m_p J_p^{n+1} (2D,
+def scatter_volume_2d(x, vol0, J_old, J_new, order, dx, domain_lo, origin, grid_old, grid_new):
+    """grid_old += sum_p w_ip V0_p J_p^n, grid_new += sum_p w_ip V0_p J_p^{n+1} (2D,
     block-local nodes, weights at x = x^n)."""
     order = len(order)  # compile-time constant: see transfer.static
     inv_dx = 1.0 / dx
@@ -68,8 +70,8 @@ def scatter_volume_2d(x, mass, J_old, J_new, order, dx, domain_lo, origin, grid_
         if not math.isfinite(J_new[p]):
             continue
         w0, w1, l0, l1 = _stencil_2d(x, p, order, inv_dx, domain_lo, origin)
-        vo = mass[p] * J_old[p]
-        vn = mass[p] * J_new[p]
+        vo = vol0[p] * J_old[p]
+        vn = vol0[p] * J_new[p]
         for i in range(s):
             for j in range(s):
                 w = w0[i] * w1[j]
@@ -78,7 +80,7 @@ def scatter_volume_2d(x, mass, J_old, J_new, order, dx, domain_lo, origin, grid_
 
 
 @njit(cache=True)
-def scatter_volume_3d(x, mass, J_old, J_new, order, dx, domain_lo, origin, grid_old, grid_new):
+def scatter_volume_3d(x, vol0, J_old, J_new, order, dx, domain_lo, origin, grid_old, grid_new):
     """`scatter_volume_2d` in 3D."""
     order = len(order)
     inv_dx = 1.0 / dx
@@ -87,8 +89,8 @@ def scatter_volume_3d(x, mass, J_old, J_new, order, dx, domain_lo, origin, grid_
         if not math.isfinite(J_new[p]):
             continue
         w0, w1, w2, l0, l1, l2 = _stencil_3d(x, p, order, inv_dx, domain_lo, origin)
-        vo = mass[p] * J_old[p]
-        vn = mass[p] * J_new[p]
+        vo = vol0[p] * J_old[p]
+        vn = vol0[p] * J_new[p]
         for i in range(s):
             for j in range(s):
                 wij = w0[i] * w1[j]

@@ -1,7 +1,7 @@
 """``simulation.volume_averaging = "increment"`` (hpcmpm/kernels/volume.py): the engine's average
 of the step's change of J through the distributed grid equals a one-process average written
 here from the B-spline formula, on 1, 2 and 4 ranks, in 2D and 3D, on a periodic axis too; it
-conserves the total volume sum_p m_p J_p, keeps a uniform ratio and a state at rest, keeps a
+conserves the total volume sum_p V0_p J_p, keeps a uniform ratio and a state at rest, keeps a
 linear J inside a regular lattice, and leaves a non-finite J and other materials alone."""
 
 import numpy as np
@@ -30,6 +30,12 @@ type = "neo_hookean"
 density = 1.0
 E = 1.0e4
 nu = 0.3
+
+[[materials]]
+name = "water"
+type = "weakly_compressible"
+density = 10.0
+E = 1.0e4
 """
 
 
@@ -37,8 +43,10 @@ def scene_text(dim: int, kernel: str, periodic: bool) -> str:
     hi = ", ".join(["1.0"] * dim)
     lower = ", ".join(["0.2"] * dim)
     upper = ", ".join(["0.8"] + ["0.5"] * (dim - 1))
-    # A second body of a material whose J is not averaged (neo-Hookean carries F) overlaps
-    # the paste's upper part: its particles must neither contribute nor change.
+    # A body of a material whose J is not averaged (neo-Hookean carries F) overlaps the
+    # paste's upper part: its particles must neither contribute nor change. A water body
+    # five times as dense as the paste shares the nodes below it: both are averaged
+    # together, weighed by volume (V0 J), not by mass.
     lower2 = ", ".join(["0.2"] + ["0.4"] * (dim - 1))
     upper2 = ", ".join(["0.8"] + ["0.7"] * (dim - 1))
     return f"""
@@ -66,6 +74,14 @@ material = "rubber"
 shape = "box"
 lower = [{lower2}]
 upper = [{upper2}]
+
+[[bodies]]
+name = "water"
+material = "water"
+shape = "box"
+lower = [{", ".join(["0.2", "0.05"] + ["0.2"] * (dim - 2))}]
+upper = [{", ".join(["0.8", "0.2"] + ["0.5"] * (dim - 2))}]
+jitter = 0.4
 """
 
 
@@ -83,8 +99,8 @@ def weights_1d(xi: np.ndarray, order: int):
     return base, w
 
 
-def reference_average(x, mass, J_old, J_new, dx, order, dim, periodic_cells):
-    """J_p^n sum_i w_ip r_i, r_i = sum_q w_iq m_q J_q^{n+1} / sum_q w_iq m_q J_q^n, over all
+def reference_average(x, vol0, J_old, J_new, dx, order, dim, periodic_cells):
+    """J_p^n sum_i w_ip r_i, r_i = sum_q w_iq V0_q J_q^{n+1} / sum_q w_iq V0_q J_q^n, over all
     particles at once; nodes along a periodic axis wrap modulo its cell count."""
     bases, ws = zip(*(weights_1d(x[:, a] / dx, order) for a in range(dim)))
     s = order + 1
@@ -101,8 +117,8 @@ def reference_average(x, mass, J_old, J_new, dx, order, dim, periodic_cells):
     old = np.zeros(len(unique))
     new = np.zeros(len(unique))
     for k in range(len(nodes)):
-        np.add.at(old, inverse[k], w[k] * mass * J_old)
-        np.add.at(new, inverse[k], w[k] * mass * J_new)
+        np.add.at(old, inverse[k], w[k] * vol0 * J_old)
+        np.add.at(new, inverse[k], w[k] * vol0 * J_new)
     r = new / old
     return J_old * sum(w[k] * r[inverse[k]] for k in range(len(nodes)))
 
@@ -129,22 +145,27 @@ def check(dim: int, kernel: str, periodic: bool) -> None:
     before = gather_by_id(sim.domain, p)
     change = lambda q: q["J"] * (1.0 + 0.2 * np.cos(1.3 * q["id"]))  # noqa: E731
     after = averaged(sim, change)
-    paste = before["group"] == 0
-    assert paste.sum() > 100 and (~paste).sum() > 50
-    # The other material keeps its own new J, to the bit.
+    paste = before["group"] != 1  # the paste and the water; the rubber is group 1
+    assert (before["group"] == 0).sum() > 100 and (before["group"] == 2).sum() > 50
+    assert (~paste).sum() > 50
+    # The rubber keeps its own new J, to the bit.
     assert np.array_equal(after["J"][~paste], change(before)[~paste])
     order = 2 if kernel == "quadratic" else 3
     cells = int(round(1.0 / sim.dx)) if periodic else 0
     J_new = change(before)[paste]
-    expected = reference_average(before["x"][paste], before["mass"][paste],
+    expected = reference_average(before["x"][paste], before["vol0"][paste],
                                  before["J"][paste], J_new, sim.dx, order, dim, cells)
     # Sums of <= 64 positive terms per node and per particle, in another order: round-off.
     np.testing.assert_allclose(after["J"][paste], expected, rtol=1e-13, atol=0)
     # Not the identity: the average moves J by a sizeable fraction of the 0.2 change.
     assert np.abs(after["J"][paste] - J_new).max() > 0.05
-    # Total volume: sum_p m_p J_p^{n+1} is conserved (partition of unity), to round-off.
-    m = before["mass"][paste]
-    assert np.sum(m * after["J"][paste]) == pytest.approx(np.sum(m * J_new), rel=1e-13)
+    # Total volume: sum_p V0_p J_p^{n+1} is conserved (partition of unity), to round-off.
+    V0 = before["vol0"][paste]
+    assert np.sum(V0 * after["J"][paste]) == pytest.approx(np.sum(V0 * J_new), rel=1e-13)
+    # Weighed by mass instead, the dense water would pull the shared nodes: not what ran.
+    by_mass = reference_average(before["x"][paste], before["mass"][paste], before["J"][paste],
+                                J_new, sim.dx, order, dim, cells)
+    assert np.abs(by_mass - expected).max() > 1e-3
     # A uniform ratio is kept (every r_i is 1.25), and so is a state at rest.
     start = gather_by_id(sim.domain, p)["J"]
     again = averaged(sim, lambda q: 1.25 * q["J"])
@@ -160,9 +181,9 @@ def check(dim: int, kernel: str, periodic: bool) -> None:
 
 def check_linear_field(dim: int, kernel: str) -> None:
     """From J^n = 1, a new J linear in x on a regular lattice (no jitter) is kept exactly
-    away from the body's faces: the nodal mass-weighted average of a linear field is its value at the particles'
-    centroid about the node, which is the node where the lattice is symmetric about it, and
-    the B-splines reproduce linear fields (linear completeness)."""
+    away from the body's faces: the nodal volume-weighted average of a linear field is its
+    value at the particles' centroid about the node, which is the node where the lattice is
+    symmetric about it, and the B-splines reproduce linear fields (linear completeness)."""
     dx = 1.0 / 16
     zeros, ones = ", ".join(["0.0"] * dim), ", ".join(["1.0"] * dim)
     text = f"""
