@@ -258,6 +258,11 @@ class Simulation:
         with self.phase("p2g"):
             self.grid.fit(*self.domain.grid_box(self.particles, self.order))
 
+    def volume_scratch_bytes_per_particle(self) -> int:
+        """Bytes per particle of volume averaging's copies of x and J (at the particles'
+        capacity); 0 without it."""
+        return 8 * (self.dim + 1) if self._volume_groups else 0
+
     def remember_volumes(self) -> None:
         """``simulation.volume_averaging``, before G2P: keep x^n and J^n (G2P moves x, and
         advances J in mode J) for `average_volumes`. A no-op without it."""

@@ -76,15 +76,18 @@ def format_bytes(n: float) -> str:
 
 def particle_bytes(scene) -> int:
     """Bytes per particle at the peak: the fields the scene declares (materials, transfer,
-    prescribed sets) and the integrator's per-particle arrays (the semi-implicit solve's,
-    `scratch_bytes_per_particle`), both allocated at the particles' capacity, hence with the
-    spare factor, and the scratch of migration and sorting."""
+    prescribed sets), the integrator's per-particle arrays (the semi-implicit solve's,
+    `scratch_bytes_per_particle`) and volume averaging's copies of x and J, all allocated at
+    the particles' capacity, hence with the spare factor, and the scratch of migration and
+    sorting."""
     from .simulation import Simulation
     from .solvers import INTEGRATORS
 
-    fields = Simulation(scene, None).particles.nbytes_per_particle()
+    sim = Simulation(scene, None)
+    fields = sim.particles.nbytes_per_particle()
     solver = INTEGRATORS[scene.integrator].scratch_bytes_per_particle(scene.dim)
-    return int(SPARE_FACTOR * (fields + solver) + SCRATCH_BYTES)
+    return int(SPARE_FACTOR * (fields + solver + sim.volume_scratch_bytes_per_particle())
+               + SCRATCH_BYTES)
 
 
 def side_bytes(scene, body_counts) -> tuple[float, str, str]:

@@ -97,3 +97,24 @@ def test_semi_implicit_scratch_is_in_the_estimate():
                           overrides + ['simulation.integrator="explicit"'])
     difference = startup.particle_bytes(scene) - startup.particle_bytes(explicit)
     assert abs(difference - startup.SPARE_FACTOR * declared) <= 1  # int() rounding
+
+
+def test_start_up_estimate_counts_the_copies_of_volume_averaging():
+    """Volume averaging keeps x^n and J^n of every particle (8 (d + 1) B at the capacity): the
+    estimate holds them, as the run allocates them, and nothing without the option."""
+    from hpcmpm.runner import initial_particles, make_domain
+    from hpcmpm.simulation import Simulation
+
+    overrides = ["simulation.dx=0.03125"]
+    scene = load_scene("inputs/hb_mixer_2d.toml", overrides)
+    assert scene.volume_averaging == "increment"
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    sim.step(sim.stable_dt())
+    held = sim._x_old.nbytes + sim._J_old.nbytes
+    assert held == sim.particles.capacity * sim.volume_scratch_bytes_per_particle() == \
+        sim.particles.capacity * 8 * 3  # 2D
+    plain = load_scene("inputs/hb_mixer_2d.toml",
+                       overrides + ['simulation.volume_averaging="none"'])
+    difference = startup.particle_bytes(scene) - startup.particle_bytes(plain)
+    assert abs(difference - startup.SPARE_FACTOR * 24) <= 1  # int() rounding
