@@ -83,3 +83,32 @@ def evaluate(xi: np.ndarray, order: int, inv_dx: float):
                 w[p, a, k] = wa[k]
                 dw[p, a, k] = dwa[k]
     return base, w, dw
+
+
+@njit(cache=True, inline="always")
+def stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin):
+    """(w0, w1, l0, l1): the weights along each axis of particle p (row of x) and its first
+    stencil node in block-local indices (``origin`` the block's first node), for the
+    transfers that need no gradient."""
+    xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
+    xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
+    b0 = stencil_base(xi0, order)
+    b1 = stencil_base(xi1, order)
+    w0, _ = weights(xi0, b0, order, inv_dx)
+    w1, _ = weights(xi1, b1, order, inv_dx)
+    return w0, w1, b0 - origin[0], b1 - origin[1]
+
+
+@njit(cache=True, inline="always")
+def stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin):
+    """`stencil_weights_2d` in 3D: (w0, w1, w2, l0, l1, l2)."""
+    xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
+    xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
+    xi2 = (x[p, 2] - domain_lo[2]) * inv_dx
+    b0 = stencil_base(xi0, order)
+    b1 = stencil_base(xi1, order)
+    b2 = stencil_base(xi2, order)
+    w0, _ = weights(xi0, b0, order, inv_dx)
+    w1, _ = weights(xi1, b1, order, inv_dx)
+    w2, _ = weights(xi2, b2, order, inv_dx)
+    return w0, w1, w2, b0 - origin[0], b1 - origin[1], b2 - origin[2]

@@ -23,7 +23,7 @@ from __future__ import annotations
 from numba import njit
 
 from .deformation import advance_2d, advance_3d
-from .shape import stencil_base, weights
+from .shape import stencil_base, stencil_weights_2d, stencil_weights_3d, weights
 
 PIC, FLIP, APIC, MLS = 0, 1, 2, 3
 SCHEMES = {"pic": PIC, "flip": FLIP, "apic": APIC, "mls": MLS}
@@ -395,17 +395,9 @@ def scatter_forces_2d(x, f, order, dx, domain_lo, origin, dt, grid_momentum):
     order = len(order)  # compile-time constant: see `static`
     inv_dx = 1.0 / dx
     s = order + 1
-    lo0, lo1 = domain_lo[0], domain_lo[1]
-    o0, o1 = origin[0], origin[1]
     for p in range(x.shape[0]):
-        xi0 = (x[p, 0] - lo0) * inv_dx
-        xi1 = (x[p, 1] - lo1) * inv_dx
-        b0 = stencil_base(xi0, order)
-        b1 = stencil_base(xi1, order)
-        w0, _ = weights(xi0, b0, order, inv_dx)
-        w1, _ = weights(xi1, b1, order, inv_dx)
+        w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
         f0, f1 = dt * f[p, 0], dt * f[p, 1]
-        l0, l1 = b0 - o0, b1 - o1
         for i in range(s):
             for j in range(s):
                 wij = w0[i] * w1[j]
@@ -419,20 +411,9 @@ def scatter_forces_3d(x, f, order, dx, domain_lo, origin, dt, grid_momentum):
     order = len(order)  # compile-time constant: see `static`
     inv_dx = 1.0 / dx
     s = order + 1
-    lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
-    o0, o1, o2 = origin[0], origin[1], origin[2]
     for p in range(x.shape[0]):
-        xi0 = (x[p, 0] - lo0) * inv_dx
-        xi1 = (x[p, 1] - lo1) * inv_dx
-        xi2 = (x[p, 2] - lo2) * inv_dx
-        b0 = stencil_base(xi0, order)
-        b1 = stencil_base(xi1, order)
-        b2 = stencil_base(xi2, order)
-        w0, _ = weights(xi0, b0, order, inv_dx)
-        w1, _ = weights(xi1, b1, order, inv_dx)
-        w2, _ = weights(xi2, b2, order, inv_dx)
+        w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
         f0, f1, f2 = dt * f[p, 0], dt * f[p, 1], dt * f[p, 2]
-        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
         for i in range(s):
             for j in range(s):
                 wij = w0[i] * w1[j]

@@ -29,34 +29,7 @@ import math
 
 from numba import njit
 
-from .shape import stencil_base, weights
-
-
-@njit(cache=True, inline="always")
-def _stencil_2d(x, p, order, inv_dx, domain_lo, origin):
-    """(w0, w1, l0, l1): particle p's weights per axis and its first block-local node."""
-    xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
-    xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
-    b0 = stencil_base(xi0, order)
-    b1 = stencil_base(xi1, order)
-    w0, _ = weights(xi0, b0, order, inv_dx)
-    w1, _ = weights(xi1, b1, order, inv_dx)
-    return w0, w1, b0 - origin[0], b1 - origin[1]
-
-
-@njit(cache=True, inline="always")
-def _stencil_3d(x, p, order, inv_dx, domain_lo, origin):
-    """`_stencil_2d` in 3D: (w0, w1, w2, l0, l1, l2)."""
-    xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
-    xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
-    xi2 = (x[p, 2] - domain_lo[2]) * inv_dx
-    b0 = stencil_base(xi0, order)
-    b1 = stencil_base(xi1, order)
-    b2 = stencil_base(xi2, order)
-    w0, _ = weights(xi0, b0, order, inv_dx)
-    w1, _ = weights(xi1, b1, order, inv_dx)
-    w2, _ = weights(xi2, b2, order, inv_dx)
-    return w0, w1, w2, b0 - origin[0], b1 - origin[1], b2 - origin[2]
+from .shape import stencil_weights_2d, stencil_weights_3d
 
 
 @njit(cache=True)
@@ -69,7 +42,7 @@ def scatter_volume_2d(x, vol0, J_old, J_new, order, dx, domain_lo, origin, grid_
     for p in range(x.shape[0]):
         if not math.isfinite(J_new[p]):
             continue
-        w0, w1, l0, l1 = _stencil_2d(x, p, order, inv_dx, domain_lo, origin)
+        w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
         vo = vol0[p] * J_old[p]
         vn = vol0[p] * J_new[p]
         for i in range(s):
@@ -88,7 +61,7 @@ def scatter_volume_3d(x, vol0, J_old, J_new, order, dx, domain_lo, origin, grid_
     for p in range(x.shape[0]):
         if not math.isfinite(J_new[p]):
             continue
-        w0, w1, w2, l0, l1, l2 = _stencil_3d(x, p, order, inv_dx, domain_lo, origin)
+        w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
         vo = vol0[p] * J_old[p]
         vn = vol0[p] * J_new[p]
         for i in range(s):
@@ -118,7 +91,7 @@ def gather_volume_2d(x, J_old, order, dx, domain_lo, origin, grid_r, J):
     for p in range(x.shape[0]):
         if not math.isfinite(J[p]):
             continue
-        w0, w1, l0, l1 = _stencil_2d(x, p, order, inv_dx, domain_lo, origin)
+        w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
         acc = 0.0
         for i in range(s):
             for j in range(s):
@@ -135,7 +108,7 @@ def gather_volume_3d(x, J_old, order, dx, domain_lo, origin, grid_r, J):
     for p in range(x.shape[0]):
         if not math.isfinite(J[p]):
             continue
-        w0, w1, w2, l0, l1, l2 = _stencil_3d(x, p, order, inv_dx, domain_lo, origin)
+        w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
         acc = 0.0
         for i in range(s):
             for j in range(s):

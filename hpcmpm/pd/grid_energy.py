@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from ..kernels.deformation import volume_ratio
-from ..kernels.shape import stencil_base, weights
+from ..kernels.shape import stencil_weights_2d, stencil_weights_3d
 from ..materials.decompositions import jacobi_angle
 
 ENERGIES = ("stress_squared", "tensile_energy")
@@ -183,8 +183,6 @@ def energy_history_2d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, or
     order = len(order)
     inv_dx = 1.0 / dx
     s = order + 1
-    lo0, lo1 = domain_lo[0], domain_lo[1]
-    o0, o1 = origin[0], origin[1]
     for p in range(x.shape[0]):
         phi = phi_2d(tau, F, p, code, E, nu)
         if phi > EE[p]:
@@ -192,13 +190,7 @@ def energy_history_2d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, or
         me = mass[p] * EE[p]
         if me == 0.0:
             continue
-        xi0 = (x[p, 0] - lo0) * inv_dx
-        xi1 = (x[p, 1] - lo1) * inv_dx
-        b0 = stencil_base(xi0, order)
-        b1 = stencil_base(xi1, order)
-        w0, _ = weights(xi0, b0, order, inv_dx)
-        w1, _ = weights(xi1, b1, order, inv_dx)
-        l0, l1 = b0 - o0, b1 - o1
+        w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
         for i in range(s):
             for j in range(s):
                 grid_energy[l0 + i, l1 + j] += w0[i] * w1[j] * me
@@ -211,23 +203,12 @@ def energy_history_3d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, or
     order = len(order)
     inv_dx = 1.0 / dx
     s = order + 1
-    lo0, lo1, lo2 = domain_lo[0], domain_lo[1], domain_lo[2]
-    o0, o1, o2 = origin[0], origin[1], origin[2]
     for p in range(x.shape[0]):
         EE[p] = phi_3d(tau, F, p, code, E, nu, EE[p])
         me = mass[p] * EE[p]
         if me == 0.0:
             continue
-        xi0 = (x[p, 0] - lo0) * inv_dx
-        xi1 = (x[p, 1] - lo1) * inv_dx
-        xi2 = (x[p, 2] - lo2) * inv_dx
-        b0 = stencil_base(xi0, order)
-        b1 = stencil_base(xi1, order)
-        b2 = stencil_base(xi2, order)
-        w0, _ = weights(xi0, b0, order, inv_dx)
-        w1, _ = weights(xi1, b1, order, inv_dx)
-        w2, _ = weights(xi2, b2, order, inv_dx)
-        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
         for i in range(s):
             for j in range(s):
                 wij = w0[i] * w1[j] * me
