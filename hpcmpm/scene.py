@@ -486,13 +486,14 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
                                  integer=True) or 2)
 
 
-def _check_output_fields(c: Checker, output: OutputSpec, materials, materials_complete: bool,
-                         transfer, prescribed, integrator, dim, volume_averaging) -> None:
-    """Each requested field must exist in this scene's particles (the writer would skip it
+def _check_with_material_instances(c: Checker, output: OutputSpec, materials,
+                                   materials_complete: bool, transfer, prescribed, integrator,
+                                   dim, volume_averaging) -> None:
+    """The checks that need the materials made as the run makes them: SPB-MPM's
+    combinations, ``volume_averaging`` with a material whose J it averages, and each
+    requested output field existing in this scene's particles (the writer would skip it
     silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
-    what the run allocates), or ``tau``, the Kirchhoff stress computed for output. Also,
-    from the same material instances: ``volume_averaging = "increment"`` needs a material whose
-    J it averages."""
+    what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
     from .materials import make_material
     from .materials.failure import failure_scene_problems
     from .simulation import deformation_mode, particle_field_specs
@@ -839,10 +840,10 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     colliders = _colliders(c, raw, dim)
     prescribed = _prescribed(c, raw, dim)
     entries = raw.get("materials")
-    _check_output_fields(c, output, materials,
-                         isinstance(entries, list) and len(entries) == len(materials),
-                         sim["transfer"], prescribed, sim["integrator"], sim["dim"],
-                         sim["volume_averaging"])
+    _check_with_material_instances(c, output, materials,
+                                   isinstance(entries, list) and len(entries) == len(materials),
+                                   sim["transfer"], prescribed, sim["integrator"], sim["dim"],
+                                   sim["volume_averaging"])
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)

@@ -263,9 +263,16 @@ class Simulation:
         capacity); 0 without it."""
         return 8 * (self.dim + 1) if self._volume_groups else 0
 
+    def _volume_slices(self) -> list[tuple[int, int]]:
+        """The nonempty row slices of the averaging materials (valid from the step's sort
+        to its migration)."""
+        slices = [self.group_slices[g] for g in self._volume_groups]
+        return [(start, stop) for start, stop in slices if stop > start]
+
     def remember_volumes(self) -> None:
-        """``simulation.volume_averaging``, before G2P: keep x^n and J^n (G2P moves x, and
-        advances J in mode J) for `average_volumes`. A no-op without it."""
+        """``simulation.volume_averaging``, before G2P: keep x^n and J^n of the averaging
+        materials' rows (G2P moves x, and advances J in mode J) for `average_volumes`. A
+        no-op without it."""
         if not self._volume_groups:
             return
         with self.phase("volume"):
@@ -273,8 +280,10 @@ class Simulation:
             if len(self._J_old) < p.n:
                 self._x_old = np.empty((p.capacity, self.dim))
                 self._J_old = np.empty(p.capacity)
-            self._x_old[: p.n] = p["x"]
-            self._J_old[: p.n] = p["J"]
+            x, J = p["x"], p["J"]
+            for start, stop in self._volume_slices():
+                self._x_old[start:stop] = x[start:stop]
+                self._J_old[start:stop] = J[start:stop]
 
     def average_volumes(self) -> None:
         """``simulation.volume_averaging``, after the state update: the averaging materials'
@@ -283,8 +292,7 @@ class Simulation:
         if not self._volume_groups:
             return
         p, grid = self.particles, self.grid
-        slices = [self.group_slices[g] for g in self._volume_groups]
-        slices = [(start, stop) for start, stop in slices if stop > start]
+        slices = self._volume_slices()
         x_old, J_old, vol0, J = self._x_old, self._J_old, p["vol0"], p["J"]
         with self.phase("volume"):
             for start, stop in slices:

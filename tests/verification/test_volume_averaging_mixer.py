@@ -27,7 +27,7 @@ def fluid_J_near_the_disks(averaging: str) -> np.ndarray:
                        SETS + [f'simulation.volume_averaging="{averaging}"'])
     sim = simulate(scene, end_time=0.2)
     p = sim.particles
-    x, J = p["x"][: p.n], p["J"][: p.n]
+    x, J = p["x"], p["J"]
     near = np.zeros(p.n, bool)
     for collider in scene.colliders:
         if collider.name.endswith("disk"):
