@@ -23,7 +23,13 @@ mirror-symmetric along the wall and its displacement gradient is normal to the w
 clamp imposes on the wall itself. The ghost's reaction goes to the wall, not to a particle:
 momentum is not conserved near a clamp, as at any support. A ghost bond is intact while its
 source bond is; it does not break by its own stretch (the wall is glued) and does not count
-in the damage.
+in the damage. A ghost bond is not tested against pre-cracks (its source bond was).
+
+Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based correspondence bodies
+(``type = "peridynamic"``, ``model = "correspondence"``, ``integration = "grid"``; the
+material's ``clamp`` key). The kernels take the clamp as ``clamp_parameters``: the horizon,
+the particle spacing, the influence function and whether partial volumes are on, so that a
+ghost's weight follows the rule its source family was built with (families.py).
 """
 
 from __future__ import annotations
@@ -31,11 +37,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .families import partial_volume
+from .families import influence, partial_volume
 from .geometry import norm3
 
 NO_FACES = np.zeros((0, 2))
-NO_CLAMP = np.zeros(3)
+NO_CLAMP = np.zeros(4)
+LINEAR_INFLUENCE = -1      # SPB's omega = |X| / delta (not one of families.INFLUENCES)
+
+
+def clamp_parameters(delta: float, spacing: float, influence_code: int,
+                     partial_volumes: bool) -> np.ndarray:
+    """The kernels' clamp array: horizon, particle spacing, influence (a families.INFLUENCES
+    index, or LINEAR_INFLUENCE) and 1.0 where partial volumes are on."""
+    return np.array([delta, spacing, float(influence_code), float(partial_volumes)])
+
+
+@njit(cache=True, error_model="numpy")
+def clamp_reach(clamp):
+    """Distance from a wall within which a particle has ghost bonds: its family radius."""
+    return clamp[0] + 0.5 * clamp[1] if clamp[3] != 0.0 else clamp[0]
 
 
 def sticky_faces(scene) -> np.ndarray:
@@ -65,10 +85,17 @@ def ghost_bond(x, x0, p, q, axis, plane, dim, Y, X):
 
 
 @njit(cache=True, error_model="numpy")
-def ghost_weight(X, delta, spacing, linear):
-    """w' of a ghost bond with reference vector X; 0 outside the family radius."""
+def ghost_weight(X, clamp):
+    """w' of a ghost bond with reference vector X, by the rule of the source family
+    (families.find_families: influence times partial volume); 0 outside the family radius."""
+    delta, spacing, code, partial = clamp[0], clamp[1], int(clamp[2]), clamp[3] != 0.0
     r = norm3(X[0], X[1], X[2])
-    if r >= delta + 0.5 * spacing:
+    if partial:
+        if r >= delta + 0.5 * spacing:
+            return 0.0
+    elif r > delta:
         return 0.0
-    w = partial_volume(r, delta, spacing, True)
-    return w * r / delta if linear else w
+    w = partial_volume(r, delta, spacing, partial)
+    if code == LINEAR_INFLUENCE:
+        return w * r / delta
+    return influence(code, r, delta) * w

@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES, ghost_bond, ghost_weight
+from .clamp import NO_CLAMP, NO_FACES, clamp_reach, ghost_bond, ghost_weight
 from .geometry import bond_vectors, norm3
 
 # det K below this fraction of (tr K / d)^d: the family does not span the space.
@@ -83,7 +83,7 @@ def _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv
                  A, F, active, G, acc, forces):
     """p's ghost bonds (clamp.py): add them to its K and N, or with ``forces`` add their pair
     forces to acc (the ghost's state from its source: A_q' = A_q, F_q' = I - (F_q - I) R)."""
-    reach = clamp[0] + 0.5 * clamp[1]
+    reach = clamp_reach(clamp)
     for f in range(faces.shape[0]):
         axis = int(faces[f, 0])
         plane = faces[f, 1]
@@ -94,7 +94,7 @@ def _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv
             if q < 0:
                 continue
             ghost_bond(x, x0, p, q, axis, plane, dim, Yv, Xv)
-            w = ghost_weight(Xv, clamp[0], clamp[1], clamp[2] != 0.0)
+            w = ghost_weight(Xv, clamp)
             if w == 0.0:
                 continue
             if not forces:
@@ -320,6 +320,8 @@ class Correspondence:
     stabilization_modulus : G = stabilization * c.
     critical_stretch : s0 (inf: no failure).
     time_step_c : micromodulus of the PMB solid with the same P-wave modulus.
+    clamp_faces, clamp : the sticky walls, (axis, plane) rows, and the `clamp.clamp_parameters`
+        of the ghost bonds that clamp the body there (clamp.py; default: no clamp).
     """
 
     name = "correspondence"
@@ -327,8 +329,11 @@ class Correspondence:
     halo_fields = ("A", "F", "active")
 
     def __init__(self, dim: int, stress=None, stabilization_modulus: float = 0.0,
-                 critical_stretch: float = math.inf, time_step_c: float = 0.0, energy=None):
+                 critical_stretch: float = math.inf, time_step_c: float = 0.0, energy=None,
+                 clamp_faces=NO_FACES, clamp=NO_CLAMP):
         self.dim = dim
+        self.clamp_faces = np.ascontiguousarray(clamp_faces, dtype=np.float64)
+        self.clamp = np.ascontiguousarray(clamp, dtype=np.float64)
         self.stress = stress
         self.energy = energy
         self.G = float(stabilization_modulus)
@@ -358,7 +363,7 @@ class Correspondence:
         b = pts.bonds
         return correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
                                          b.weight, self.s0, pts.n_owned, self.F, self.Kinv,
-                                         self.active, NO_FACES, NO_CLAMP)
+                                         self.active, self.clamp_faces, self.clamp)
 
     def set_stress(self, tau, n_owned: int) -> None:
         correspondence_force_state(self.F, self.Kinv, tau, self.active, n_owned, self.A)
@@ -373,12 +378,14 @@ class Correspondence:
     def strain_energy(self, pts) -> float:
         """sum_p V_p (psi(F_p) + zero-energy-mode penalty) over the owned points at their
         current positions, F recomputed into scratch (the model's F, A of the last force pass
-        are left alone). Reads the intact bonds of ``pts`` as they are (the caller breaks the
-        over-stretched ones on a copy first)."""
+        are left alone; F with the clamp's ghost bonds, whose own penalty is not counted).
+        Reads the intact bonds of ``pts`` as they are (the caller breaks the over-stretched
+        ones on a copy first)."""
         b, n, d = pts.bonds, pts.n_owned, self.dim
         F, Kinv, active = np.empty((n, d, d)), np.empty((n, d, d)), np.empty(n)
         correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
-                                  b.weight, math.inf, n, F, Kinv, active, NO_FACES, NO_CLAMP)
+                                  b.weight, math.inf, n, F, Kinv, active, self.clamp_faces,
+                                  self.clamp)
         total = stabilization_energy(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
                                      b.weight, F, active, self.G, n)
         if self.energy is not None:
@@ -388,6 +395,6 @@ class Correspondence:
     def forces(self, pts, f) -> int:
         b = pts.bonds
         correspondence_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                              self.A, self.F, self.active, self.G, pts.n_owned, f, NO_FACES,
-                              NO_CLAMP)
+                              self.A, self.F, self.active, self.G, pts.n_owned, f,
+                              self.clamp_faces, self.clamp)
         return 0

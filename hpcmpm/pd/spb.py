@@ -72,7 +72,7 @@ from ..parallel.exchange import exchange_rows, pack_rows, row_dtype, unpack_rows
 from ..parallel.pd_halo import TAG_PD_BONDS, PDHalo, align_rows, redistribute_segments
 from ..state import VECTOR
 from .bonds import Bonds
-from .clamp import NO_FACES, sticky_faces
+from .clamp import LINEAR_INFLUENCE, NO_FACES, clamp_parameters, sticky_faces
 from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
@@ -119,7 +119,8 @@ class SPBExtension(CheckpointedBonds):
         # The clamp's ghost bonds (clamp.py) at the sticky domain walls.
         self.clamp_faces = sticky_faces(sim.scene) if f0["clamp"] == "sticky_walls" \
             else NO_FACES
-        self.clamp = np.array([self.delta, self.spacing, float(self.linear_influence)])
+        self.clamp = clamp_parameters(self.delta, self.spacing,
+                                      LINEAR_INFLUENCE if self.linear_influence else 0, True)
         self.energy_code = np.array([ENERGIES.index(s["energy"]) for s in specs])
         # eq. 6.10 divides tau by det F, or by the material's own volume ratio J where it
         # carries no F (the impact models in mode "L").

@@ -49,6 +49,12 @@ def sim_with(old: str, new: str) -> Simulation:
      "materials[0].integration: unknown value 'implicit'"),
     ('model = "pmb"', 'model = "pmb"\npartial_volumes = 1',
      "materials[0].partial_volumes: must be true or false, got 1"),
+    ('model = "pmb"', 'model = "pmb"\nclamp = "sticky_walls"',
+     "materials[0].clamp: 'sticky_walls' is implemented for model = 'correspondence' with "
+     "integration = 'grid' only (this body: model = 'pmb', integration = 'pd'); use 'auto' "
+     "or 'none'"),
+    ('model = "pmb"', 'model = "pmb"\nclamp = "yes"',
+     "materials[0].clamp: unknown value 'yes'"),
 ])
 def test_bad_input_is_one_line_with_exit_2(tmp_path, capsys, old, new, line):
     """Through the CLI (`hpcmpm validate`): one line in the scene file's format, exit 2."""
