@@ -58,7 +58,8 @@ def plate(dx: float):
 
 
 def run(dx: float, end: float = END, safety: float = 0.8, speed: float = SPEED,
-        horizon: float = HORIZON, plane: str = "strain"):
+        horizon: float = HORIZON, plane: str = "strain", s0: float | None = None):
+    """The plate at spacing dx to ``end``; the bond failure stretch s0 from G0 unless given."""
     x0, ids = plate(dx)
     delta = horizon * dx
     # Notches as pre-cracks, extended past the edge so the edge row is cut too.
@@ -66,7 +67,8 @@ def run(dx: float, end: float = END, safety: float = 0.8, speed: float = SPEED,
     fam = find_families(x0, ids, len(x0), dx, delta, precracks=cracks)
     nu = NU if plane == "strain" else 1.0 / 3.0      # the PMB's Poisson ratio
     c = pmb_micromodulus(2, bulk_modulus(2, E, nu, plane), delta)
-    s0 = critical_stretch(2, G0, c, delta)
+    if s0 is None:
+        s0 = critical_stretch(2, G0, c, delta)
     body = PDBody(x0, np.full(len(x0), dx * dx), ids, RHO, fam, PMB(c, s0))
     impact = (x0[:, 0] < 3 * dx) & (np.abs(x0[:, 1]) < NOTCH_Y)
     body.fixed = np.flatnonzero(impact)
@@ -139,6 +141,8 @@ def main(argv=None) -> int:
     ap.add_argument("--speed", type=float, default=SPEED, help="edge velocity (m/s)")
     ap.add_argument("--horizon", type=float, default=HORIZON, help="delta / dx")
     ap.add_argument("--plane", default="strain", choices=("strain", "stress"))
+    ap.add_argument("--critical-stretch", type=float, default=None,
+                    help="bond failure stretch s0 (default: from G0 and the horizon)")
     ap.add_argument("--png", default=None, help="damage plot of the finest run")
     ap.add_argument("--npz", default=None, help="x0 and damage of the finest run")
     ap.add_argument("--out", default=str(REPO / "bench_results" /
@@ -148,7 +152,8 @@ def main(argv=None) -> int:
     end = 20e-6 if args.smoke else END
     rows = []
     for dx in dxs:
-        body, info = run(dx, end, speed=args.speed, horizon=args.horizon, plane=args.plane)
+        body, info = run(dx, end, speed=args.speed, horizon=args.horizon, plane=args.plane,
+                         s0=args.critical_stretch)
         info["plane"] = args.plane
         info["speed"] = args.speed
         info["horizon"] = args.horizon
