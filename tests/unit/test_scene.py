@@ -136,8 +136,10 @@ CASES = {
                                   + 'x_upper = { condition = "sticky" }\n',
                                   "walls.x_upper: axis 'x' is periodic (simulation.periodic): "
                                   "its faces are not walls; remove walls.x_upper or the axis"),
+    # The line of "dim = 2" in the scene file (its header may grow), 1-based as TOML counts.
     "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"),
-                    "TOML syntax error: Invalid value (at line 7, column 7)"),
+                    "TOML syntax error: Invalid value (at line "
+                    f"{GOOD.splitlines().index('dim = 2') + 1}, column 7)"),
 }
 
 
