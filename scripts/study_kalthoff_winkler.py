@@ -58,8 +58,11 @@ def plate(dx: float):
 
 
 def run(dx: float, end: float = END, safety: float = 0.8, speed: float = SPEED,
-        horizon: float = HORIZON, plane: str = "strain", s0: float | None = None):
-    """The plate at spacing dx to ``end``; the bond failure stretch s0 from G0 unless given."""
+        horizon: float = HORIZON, plane: str = "strain", s0: float | None = None,
+        perturb: float = 0.0, seed: int = 0):
+    """The plate at spacing dx to ``end``; the bond failure stretch s0 from G0 unless given;
+    ``perturb`` > 0 moves the initial positions by uniform noise of +-perturb dx (``seed``),
+    for ensembles (the crack path is sensitive to round-off-sized changes)."""
     x0, ids = plate(dx)
     delta = horizon * dx
     # Notches as pre-cracks, extended past the edge so the edge row is cut too.
@@ -70,6 +73,9 @@ def run(dx: float, end: float = END, safety: float = 0.8, speed: float = SPEED,
     if s0 is None:
         s0 = critical_stretch(2, G0, c, delta)
     body = PDBody(x0, np.full(len(x0), dx * dx), ids, RHO, fam, PMB(c, s0))
+    if perturb > 0.0:
+        n = body.pts.n_owned
+        body.pts.x[:n] += perturb * dx * np.random.default_rng(seed).uniform(-1, 1, (n, 2))
     impact = (x0[:, 0] < 3 * dx) & (np.abs(x0[:, 1]) < NOTCH_Y)
     body.fixed = np.flatnonzero(impact)
     body.fixed_velocity = np.array([speed, 0.0])
@@ -143,6 +149,9 @@ def main(argv=None) -> int:
     ap.add_argument("--plane", default="strain", choices=("strain", "stress"))
     ap.add_argument("--critical-stretch", type=float, default=None,
                     help="bond failure stretch s0 (default: from G0 and the horizon)")
+    ap.add_argument("--perturb", type=float, default=0.0,
+                    help="initial position noise, a fraction of dx (ensembles)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of --perturb")
     ap.add_argument("--png", default=None, help="damage plot of the finest run")
     ap.add_argument("--npz", default=None, help="x0 and damage of the finest run")
     ap.add_argument("--out", default=str(REPO / "bench_results" /
@@ -153,10 +162,11 @@ def main(argv=None) -> int:
     rows = []
     for dx in dxs:
         body, info = run(dx, end, speed=args.speed, horizon=args.horizon, plane=args.plane,
-                         s0=args.critical_stretch)
+                         s0=args.critical_stretch, perturb=args.perturb, seed=args.seed)
         info["plane"] = args.plane
         info["speed"] = args.speed
         info["horizon"] = args.horizon
+        info["perturb"], info["seed"] = args.perturb, args.seed
         phi = body.damage()
         angles = crack_angles(body.pts.x0[: body.pts.n_owned], phi, dx)
         info["angles_deg"] = [a for a, _ in angles]
