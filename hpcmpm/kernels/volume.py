@@ -7,8 +7,7 @@ and x^n kept before G2P and J^{n+1} the materials' state after the step,
 
 with the weights of the step's P2G (at x^n) and V0_p the initial volume, so V0_p J_p is the
 particle's volume and r_i the node's ratio of new to old volume, whatever the materials'
-densities,
-so the average acts on the increment: a state at rest (J^{n+1} = J^n) is kept exactly, and
+densities. The average acts on the increment: a state at rest (J^{n+1} = J^n) is kept exactly, and
 particle-scale noise in det(I + dt L_p) is removed before it accumulates. It is the nodal
 averaging of the volumetric deformation that MPM codes use against volumetric locking and
 pressure noise (the F-bar of Coombs, Charlton, Cortis & Augarde 2018, on the increment of a

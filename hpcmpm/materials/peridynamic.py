@@ -35,7 +35,8 @@ import math
 import numpy as np
 
 from ..pd.clamp import NO_CLAMP, NO_FACES, clamp_parameters, sticky_faces
-from ..pd.families import DEFAULT_HORIZON, INFLUENCES, half_bonds_per_particle
+from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, half_bonds_per_particle,
+                           influence_code)
 from ..pd import moduli
 from ..pd.load import ACTIVE_BONDS
 from ..state import SCALAR, VECTOR, FieldSpec
@@ -199,7 +200,7 @@ class Peridynamic(Material):
         if not len(self.clamp_faces):
             return NO_CLAMP
         prm = self.params
-        return clamp_parameters(self.delta, self.spacing, INFLUENCES.index(prm["influence"]),
+        return clamp_parameters(self.delta, self.spacing, influence_code(prm["influence"]),
                                 bool(prm["partial_volumes"]))
 
     def half_bonds_per_particle(self) -> int:
@@ -295,7 +296,7 @@ class Peridynamic(Material):
         dist = dist[(dist > 0) & ((dist < r) if self.params["partial_volumes"] else (dist <= r))]
         beta = np.minimum(1.0, (self.delta + 0.5 * h - dist) / h) \
             if self.params["partial_volumes"] else 1.0
-        code = INFLUENCES.index(self.params["influence"])
+        code = influence_code(self.params["influence"])
         omega = [np.ones_like(dist), self.delta / dist, np.maximum(1 - dist / self.delta, 0),
                  np.exp(-(dist / self.delta) ** 2)][code]
         vol = h ** self.dim
