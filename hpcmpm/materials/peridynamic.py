@@ -18,14 +18,16 @@ stress of another material of the scene (``stress_material``, an elastic model o
 deformation gradient, with Silling's zero-energy-mode control ``stabilization`` (times the PMB
 micromodulus of the same bulk modulus).
 
-``clamp`` (not in 003): an integral-based correspondence body next to a sticky domain wall is
-bonded to the mirror image of its family there (hpcmpm/pd/clamp.py, as the SPB coupling's
-clamp), so the wall holds it as a clamped end and not only through the grid nodes. "auto"
-(the default) turns it on for ``model = "correspondence"`` with ``integration = "grid"`` and
-leaves it off elsewhere; "sticky_walls" asks for it (an error where it is not implemented:
-the other models and the off-grid integrator); "none" turns it off. On the axial bar
-(inputs/ibmpm_bar_2d.toml) it takes the period error from first order (1.15 % / 0.60 % at
-25 / 50 cells) to second (0.11 % / 0.022 %): the wall cut the families of the fixed end.
+``clamp`` (not in 003): an integral-based body next to a sticky domain wall is bonded to the
+mirror image of its family there (hpcmpm/pd/clamp.py, as the SPB coupling's clamp), so the
+wall holds it as a clamped end and not only through the grid nodes. "auto" (the default)
+turns it on for ``integration = "grid"`` with ``model = "correspondence"``, ``"pmb"`` or
+``"lps"`` and leaves it off elsewhere; "sticky_walls" asks for it (an error where it is not
+implemented: bond_energy and viscoelastic_lps, whose per-bond state a ghost bond would need,
+and the off-grid integrator); "none" turns it off. On the axial bar
+(inputs/ibmpm_bar_2d.toml) it takes the correspondence period error from first order
+(1.15 % / 0.60 % at 25 / 50 cells) to second (0.11 % / 0.022 %): the wall cut the families
+of the fixed end.
 """
 
 from __future__ import annotations
@@ -43,6 +45,10 @@ from ..state import SCALAR, VECTOR, FieldSpec
 from .base import ElasticMaterial, Material
 from .params import YOUNG, Param, choice, resolve_params
 from .pd_models import EXTRA_PARAMETERS, check_chapter5
+
+# The models with the clamp's ghost bonds (hpcmpm/pd/clamp.py), on the grid.
+CLAMP_MODELS = ("correspondence", "pmb", "lps")
+
 
 def _point(x) -> str:
     return "[" + ", ".join(f"{v:g}" for v in x) + "]"
@@ -100,7 +106,8 @@ class Peridynamic(Material):
         "skin": Param(0.0, math.inf, False, 1.0, doc="PD halo skin in particle spacings"),
         "clamp": choice(("auto", "sticky_walls", "none"), "auto",
                         "mirror-image bonds at sticky domain walls (hpcmpm/pd/clamp.py); "
-                        "auto: on for integral-based correspondence, off elsewhere"),
+                        "auto: on for integral-based correspondence, pmb and lps, off "
+                        "elsewhere"),
         # Models of 003 ch. 5: materials/pd_models.py.
         **EXTRA_PARAMETERS,
         "precracks": Param(-math.inf, math.inf, False, None, check=_precracks,
@@ -133,7 +140,7 @@ class Peridynamic(Material):
     @staticmethod
     def clamp_supported(prm) -> bool:
         """Where the clamp's ghost bonds are implemented (clamp.py)."""
-        return prm["model"] == "correspondence" and prm["integration"] == "grid"
+        return prm["model"] in CLAMP_MODELS and prm["integration"] == "grid"
 
     @classmethod
     def scene_problems(cls, spec, scene) -> list[str]:
@@ -164,8 +171,9 @@ class Peridynamic(Material):
                 out.append(f"precracks[{k}]: outside the domain (lower {_point(lo)}, "
                            f"upper {_point(hi)})")
         if prm["clamp"] == "sticky_walls" and not cls.clamp_supported(prm):
-            out.append(f"clamp: 'sticky_walls' is implemented for model = 'correspondence' "
-                       f"with integration = 'grid' only (this body: model = {prm['model']!r}, "
+            out.append(f"clamp: 'sticky_walls' is implemented for model = "
+                       f"{' | '.join(map(repr, CLAMP_MODELS))} with integration = 'grid' "
+                       f"only (this body: model = {prm['model']!r}, "
                        f"integration = {prm['integration']!r}); use 'auto' or 'none'")
         if prm["model"] == "correspondence":
             names = [m.name for m in scene.materials]
@@ -248,9 +256,9 @@ class Peridynamic(Material):
 
         prm, s0, c_dt = self.params, self.critical_stretch(), self.time_step_micromodulus()
         if prm["model"] == "pmb":
-            return PMB(self.micromodulus(), s0)
+            return PMB(self.micromodulus(), s0, self.clamp_faces, self.clamp_array())
         if prm["model"] == "lps":
-            return LPS(self.bulk, self.mu, s0, c_dt)
+            return LPS(self.bulk, self.mu, s0, c_dt, self.clamp_faces, self.clamp_array())
         if prm["model"] in ("bond_energy", "viscoelastic_lps"):   # materials/pd_models.py
             from .pd_models import make_chapter5_model
             return make_chapter5_model(self, s0, c_dt)

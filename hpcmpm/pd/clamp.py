@@ -25,9 +25,14 @@ momentum is not conserved near a clamp, as at any support. A ghost bond is intac
 source bond is; it does not break by its own stretch (the wall is glued) and does not count
 in the damage. A ghost bond is not tested against pre-cracks (its source bond was).
 
-Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based correspondence bodies
-(``type = "peridynamic"``, ``model = "correspondence"``, ``integration = "grid"``; the
-material's ``clamp`` key). The kernels take the clamp as ``clamp_parameters``: the horizon,
+The bond-based and LPS models take the same ghost bonds: PMB's pair force needs no ghost
+state (pmb.py); LPS's needs the ghost's dilatation, summed over the image of its source's
+family (lps.py). With them, a clamped PMB or LPS body is the body continued through the wall
+by the odd extension, exactly, under any displacement (tests/unit/test_pd_clamp.py).
+
+Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based correspondence, PMB and
+LPS bodies (``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
+key). The kernels take the clamp as ``clamp_parameters``: the horizon,
 the particle spacing, the influence function and whether partial volumes are on, so that a
 ghost's weight follows the rule its source family was built with (families.py).
 """
@@ -70,6 +75,18 @@ def sticky_faces(scene) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy")
+def ghost_source(offsets, status, slot, p, k):
+    """The k-th ghost source of p, k in offsets[p] - 1 .. offsets[p + 1] - 1: p itself
+    (k = offsets[p] - 1), else the partner of bond k; -1 when that bond is broken or its
+    partner is not in the halo."""
+    if k < offsets[p]:
+        return p
+    if status[k] == 0 or slot[k] < 0:
+        return -1
+    return slot[k]
+
+
+@njit(cache=True, error_model="numpy")
 def ghost_bond(x, x0, p, q, axis, plane, dim, Y, X):
     """Y, X (length 3) of the bond from p to the ghost of q across the plane x_axis = plane
     (module docstring)."""
@@ -82,6 +99,41 @@ def ghost_bond(x, x0, p, q, axis, plane, dim, Y, X):
         else:
             X[i] = 0.0
             Y[i] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def ghost_scratch(offsets, faces):
+    """Scratch for `ghost_family`: X, Y (m, 3), w (m,), src (m,) with m one more than the
+    longest bond segment (m = 1 without faces: the kernels then never call it)."""
+    most = 0
+    if faces.shape[0] > 0:
+        for p in range(len(offsets) - 1):
+            most = max(most, offsets[p + 1] - offsets[p])
+    return (np.empty((most + 1, 3)), np.empty((most + 1, 3)), np.empty(most + 1),
+            np.empty(most + 1, np.int64))
+
+
+@njit(cache=True, error_model="numpy")
+def ghost_family(x, x0, offsets, slot, status, p, axis, plane, clamp, X, Y, w, src):
+    """p's ghost bonds across the plane x_axis = plane (module docstring), in the order of
+    their sources (p itself, then its bonds): X[g], Y[g] (`ghost_bond`), weight w[g] > 0
+    (`ghost_weight`) and source src[g]. Returns their count; none where p is out of reach."""
+    if abs(x0[p, axis] - plane) >= clamp_reach(clamp):
+        return 0
+    dim = x.shape[1]
+    n = 0
+    for k in range(offsets[p] - 1, offsets[p + 1]):
+        q = ghost_source(offsets, status, slot, p, k)
+        if q < 0:
+            continue
+        ghost_bond(x, x0, p, q, axis, plane, dim, Y[n], X[n])
+        wq = ghost_weight(X[n], clamp)
+        if wq == 0.0:
+            continue
+        w[n] = wq
+        src[n] = q
+        n += 1
+    return n
 
 
 @njit(cache=True, error_model="numpy")

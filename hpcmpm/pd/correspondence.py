@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES, clamp_reach, ghost_bond, ghost_weight
+from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch
 from .geometry import bond_vectors, norm3
 
 # det K below this fraction of (tr K / d)^d: the family does not span the space.
@@ -68,56 +68,40 @@ def _invert(M, out, dim):
 
 
 @njit(cache=True, error_model="numpy")
-def _ghost_sources(offsets, status, slot, p, k):
-    """The k-th ghost source of p: p itself (k = offsets[p] - 1), else the partner of an
-    intact bond; -1 when that bond is broken."""
-    if k < offsets[p]:
-        return p
-    if status[k] == 0 or slot[k] < 0:
-        return -1
-    return slot[k]
-
-
-@njit(cache=True, error_model="numpy")
-def _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv, K, N,
+def _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts, K, N,
                  A, F, active, G, acc, forces):
     """p's ghost bonds (clamp.py): add them to its K and N, or with ``forces`` add their pair
-    forces to acc (the ghost's state from its source: A_q' = A_q, F_q' = I - (F_q - I) R)."""
-    reach = clamp_reach(clamp)
+    forces to acc (the ghost's state from its source: A_q' = A_q, F_q' = I - (F_q - I) R).
+    ``ghosts``: `clamp.ghost_scratch`."""
+    GX, GY, GW, GQ = ghosts
     for f in range(faces.shape[0]):
         axis = int(faces[f, 0])
-        plane = faces[f, 1]
-        if abs(x0[p, axis] - plane) >= reach:
-            continue
-        for k in range(offsets[p] - 1, offsets[p + 1]):
-            q = _ghost_sources(offsets, status, slot, p, k)
-            if q < 0:
-                continue
-            ghost_bond(x, x0, p, q, axis, plane, dim, Yv, Xv)
-            w = ghost_weight(Xv, clamp)
-            if w == 0.0:
-                continue
+        ng = ghost_family(x, x0, offsets, slot, status, p, axis, faces[f, 1], clamp, GX, GY,
+                          GW, GQ)
+        for g in range(ng):
+            q = GQ[g]
+            w = GW[g]
             if not forces:
                 wv = w * vol[q]
                 for i in range(dim):
                     for j in range(dim):
-                        K[i, j] += wv * Xv[i] * Xv[j]
-                        N[i, j] += wv * Yv[i] * Xv[j]
+                        K[i, j] += wv * GX[g, i] * GX[g, j]
+                        N[i, j] += wv * GY[g, i] * GX[g, j]
                 continue
             vv = vol[p] * vol[q]
-            gs = G * w / norm3(Xv[0], Xv[1], Xv[2])
+            gs = G * w / norm3(GX[g, 0], GX[g, 1], GX[g, 2])
             for i in range(dim):
                 tp = 0.0
                 tq = 0.0
-                zp = Yv[i]
-                zq = Yv[i] - Xv[i]
+                zp = GY[g, i]
+                zq = GY[g, i] - GX[g, i]
                 for j in range(dim):
-                    tp += A[p, i, j] * Xv[j]
-                    tq += A[q, i, j] * Xv[j]
-                    zp -= F[p, i, j] * Xv[j]
+                    tp += A[p, i, j] * GX[g, j]
+                    tq += A[q, i, j] * GX[g, j]
+                    zp -= F[p, i, j] * GX[g, j]
                     # (F_q - I) R X: R flips the axis component of X
                     zq += (F[q, i, j] - (1.0 if i == j else 0.0)) * \
-                        (-Xv[j] if j == axis else Xv[j])
+                        (-GX[g, j] if j == axis else GX[g, j])
                 acc[i] += (w * (tp + tq) + gs * (active[p] * zp + active[q] * zq)) * vv
 
 
@@ -134,6 +118,7 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
     Ki = np.empty((dim, dim))
     Xv = np.empty(3)
     Yv = np.empty(3)
+    ghosts = ghost_scratch(offsets, faces)
     broken = 0
     for p in range(n_owned):
         K[:, :] = 0.0
@@ -158,7 +143,7 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
                     K[i, j] += wv * Xv[i] * Xv[j]
                     N[i, j] += wv * Yv[i] * Xv[j]
         if faces.shape[0] > 0:
-            _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv, K, N,
+            _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts, K, N,
                          F, F, active, 0.0, Xv, False)     # A, acc unused
         tr = 0.0
         for i in range(dim):
@@ -245,6 +230,7 @@ def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, activ
     fb = np.empty(3)
     acc = np.empty(3)
     unused = np.empty((dim, dim))      # _ghost_bonds' K, N
+    ghosts = ghost_scratch(offsets, faces)
     for p in range(n_owned):
         acc[:] = 0.0
         for b in range(offsets[p], offsets[p + 1]):
@@ -254,7 +240,7 @@ def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, activ
             for i in range(dim):
                 acc[i] += fb[i]
         if faces.shape[0] > 0:
-            _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, Xv, Yv,
+            _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts,
                          unused, unused, A, F, active, G, acc, True)
         for i in range(dim):
             f[p, i] = acc[i]

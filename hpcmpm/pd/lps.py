@@ -14,6 +14,19 @@ so an isotropic stretch s gives theta = d s, e^d = 0 and W = 9 K s^2/2 (3D), 2 k
 for any family. Two passes: `lps_dilatation` (failure, theta) on owners, then the caller
 refreshes theta (and m, once) in the halo, then `lps_forces`. m is fixed at set-up as in
 Peridigm and LAMMPS (broken bonds lower theta through their absence, not m).
+
+The clamp at sticky walls (clamp.py; integral-based bodies): a particle p within a horizon of
+such a wall is also bonded to the mirror images q' of itself and of its intact partners. Its
+m and theta sum over those ghost bonds too (the family of the body continued through the
+wall). The ghost bond's force needs t_q', hence the ghost's dilatation theta_q', which the
+odd extension u(X') = -u(R X') does not give from theta_q (a strain along the wall changes
+sign in the image: linearized, theta_q' = 2 eps_nn - theta_q). It is summed exactly, over
+the image of q's own family: q's intact bonds q-r seen from q' (X' = R X_qr,
+Y' = R X_qr - (u_r - u_q)) and q's ghost bonds across the same wall seen from q' (the bond
+from the real r to q': Y' = x_r - x_q'). So `lps_clamp_dilatation` stores theta' per
+particle and wall (``theta_image``, refreshed in the halo with theta) and m_q' = m_q (the
+image family is the mirror of q's). A corner's doubly reflected images are left out, as in
+the correspondence clamp.
 """
 
 from __future__ import annotations
@@ -23,6 +36,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .clamp import NO_CLAMP, NO_FACES, ghost_bond, ghost_family, ghost_scratch
 from .geometry import bond_vectors, norm3
 
 
@@ -155,11 +169,102 @@ def lps_energy_density(x, x0, vol, offsets, slot, status, weight, m, theta, kapp
         out[p] = 0.5 * kappa * th * th + (0.5 * alpha_m / m[p] * s if m[p] > 0.0 else 0.0)
 
 
+@njit(cache=True, error_model="numpy")
+def lps_clamp_weighted_volume(x0, vol, offsets, slot, status, n_owned, faces, clamp, m):
+    """m_p += sum over p's ghost bonds (clamp.py) of w' |X'|^2 V_q."""
+    GX, GY, GW, GQ = ghost_scratch(offsets, faces)
+    for p in range(n_owned):
+        for fc in range(faces.shape[0]):
+            ng = ghost_family(x0, x0, offsets, slot, status, p, int(faces[fc, 0]),
+                              faces[fc, 1], clamp, GX, GY, GW, GQ)
+            for g in range(ng):
+                m[p] += GW[g] * (GX[g, 0] ** 2 + GX[g, 1] ** 2 + GX[g, 2] ** 2) * vol[GQ[g]]
+
+
+@njit(cache=True, error_model="numpy")
+def lps_clamp_dilatation(x, x0, vol, offsets, slot, status, weight, m, n_owned, faces, clamp,
+                         theta, theta_image):
+    """For the owned points within reach of a face: add their ghost bonds to theta (after
+    `lps_dilatation`, so after failure), and theta_image[p, f], the dilatation of p's image
+    across face f (module docstring). theta_image is 0 where p is out of reach of f."""
+    dim = x.shape[1]
+    GX, GY, GW, GQ = ghost_scratch(offsets, faces)
+    X = np.empty(3)
+    Y = np.empty(3)
+    for p in range(n_owned):
+        extra = 0.0
+        for fc in range(faces.shape[0]):
+            theta_image[p, fc] = 0.0
+            axis = int(faces[fc, 0])
+            ng = ghost_family(x, x0, offsets, slot, status, p, axis, faces[fc, 1], clamp,
+                              GX, GY, GW, GQ)
+            if ng == 0 or m[p] <= 0.0:
+                continue
+            image = 0.0
+            # p's intact bonds seen from p': X' = R X, Y' = R X - (u_r - u_p), |X'| = |X|.
+            for b in range(offsets[p], offsets[p + 1]):
+                r = slot[b]
+                if status[b] == 0 or r < 0:
+                    continue
+                y2 = 0.0
+                x2 = 0.0
+                for i in range(dim):
+                    Xi = x0[r, i] - x0[p, i]
+                    yi = (-Xi if i == axis else Xi) - ((x[r, i] - x0[r, i])
+                                                       - (x[p, i] - x0[p, i]))
+                    x2 += Xi * Xi
+                    y2 += yi * yi
+                xl = math.sqrt(x2)
+                image += weight[b] * xl * (math.sqrt(y2) - xl) * vol[r]
+            # p's ghost bonds p-r' (theta_p), and their images r-p' (theta_p'): the same
+            # reference length, the image's Y that of `ghost_bond` with the roles swapped.
+            for g in range(ng):
+                r = GQ[g]
+                xl = norm3(GX[g, 0], GX[g, 1], GX[g, 2])
+                extra += GW[g] * xl * (norm3(GY[g, 0], GY[g, 1], GY[g, 2]) - xl) * vol[r]
+                ghost_bond(x, x0, r, p, axis, faces[fc, 1], dim, Y, X)
+                image += GW[g] * xl * (norm3(Y[0], Y[1], Y[2]) - xl) * vol[r]
+            theta_image[p, fc] = dim * image / m[p]
+        if m[p] > 0.0:
+            theta[p] += dim * extra / m[p]
+
+
+@njit(cache=True, error_model="numpy")
+def lps_clamp_terms(x, x0, vol, offsets, slot, status, m, theta, theta_image, kappa, mu,
+                    n_owned, faces, clamp, f, energy):
+    """Add the ghost bonds of the owned points within reach of a face: the pair force
+    w' (t_p + t_q') V_p V_q Y'/|Y'| (t_q' with theta_image[q, f] and m_q) to f (n_owned, d),
+    or with ``energy`` their (alpha/2) w' (e^d)^2 V_q to f[:, 0] (`lps_energy_density`)."""
+    dim = x.shape[1]
+    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    GX, GY, GW, GQ = ghost_scratch(offsets, faces)
+    for p in range(n_owned):
+        if m[p] <= 0.0:
+            continue
+        for fc in range(faces.shape[0]):
+            ng = ghost_family(x, x0, offsets, slot, status, p, int(faces[fc, 0]),
+                              faces[fc, 1], clamp, GX, GY, GW, GQ)
+            for g in range(ng):
+                q = GQ[g]
+                xl = norm3(GX[g, 0], GX[g, 1], GX[g, 2])
+                yl = norm3(GY[g, 0], GY[g, 1], GY[g, 2])
+                e = yl - xl
+                if energy:
+                    ed = e - theta[p] * xl / dim
+                    f[p, 0] += 0.5 * alpha_m / m[p] * GW[g] * ed * ed * vol[q]
+                    continue
+                t = (_scalar_force(theta[p], m[p], e, xl, kappa, alpha_m, dim)
+                     + _scalar_force(theta_image[q, fc], m[q], e, xl, kappa, alpha_m, dim))
+                a = GW[g] * t * (vol[p] * vol[q]) / yl
+                for i in range(dim):
+                    f[p, i] += a * GY[g, i]
+
+
 class LPS:
     """LPS model over a points view (integrator.PDPoints): the weighted volume m is a
     persistent per-particle field (``pts.fields["m"]``, computed at set-up, moves with its
     particle, shipped once per halo build); theta is recomputed each step and refreshed in the
-    halo (`halo_fields`).
+    halo (`halo_fields`), with the image dilatations ``theta_image`` where there is a clamp.
 
     Parameters
     ----------
@@ -167,64 +272,92 @@ class LPS:
     mu : shear modulus.
     critical_stretch : s0 (inf: no failure).
     time_step_c : micromodulus of the PMB solid with the same P-wave modulus.
+    clamp_faces, clamp : the sticky walls, (axis, plane) rows, and the `clamp.clamp_parameters`
+        of the ghost bonds that clamp the body there (clamp.py; default: no clamp).
     """
 
     name = "lps"
     persistent_fields = ("m",)
-    halo_fields = ("theta",)
 
     def __init__(self, bulk: float, mu: float, critical_stretch: float = math.inf,
-                 time_step_c: float = 0.0):
+                 time_step_c: float = 0.0, clamp_faces=NO_FACES, clamp=NO_CLAMP):
         self.kappa = float(bulk)
         self.mu = float(mu)
         self.s0 = float(critical_stretch)
         self.c_dt = float(time_step_c)
+        self.clamp_faces = np.ascontiguousarray(clamp_faces, dtype=np.float64)
+        self.clamp = np.ascontiguousarray(clamp, dtype=np.float64)
+        self.halo_fields = ("theta", "theta_image") if len(self.clamp_faces) else ("theta",)
         self.theta = np.empty(0)
+        self.theta_image = np.empty((0, len(self.clamp_faces)))
 
     def time_step_micromodulus(self) -> float:
         return self.c_dt
 
     def setup(self, pts) -> None:
-        """m over the current intact bonds of the owners (halo rows: the caller fills them)."""
+        """m over the current intact bonds of the owners, ghost bonds included (halo rows: the
+        caller fills them)."""
         m = pts.fields.setdefault("m", np.zeros(len(pts.x)))
         b = pts.bonds
         lps_weighted_volume(pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                             pts.n_owned, m)
+        if len(self.clamp_faces):
+            lps_clamp_weighted_volume(pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                                      pts.n_owned, self.clamp_faces, self.clamp, m)
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
         """Scratch for n owned + halo points."""
         if len(self.theta) != n:
             self.theta = np.zeros(n)
+            self.theta_image = np.zeros((n, len(self.clamp_faces)))
+
+    def _dilatation(self, pts, s0, theta, theta_image) -> int:
+        """Failure (stretch > s0) and theta of the owners, the clamp's ghost bonds included."""
+        b = pts.bonds
+        broken = lps_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                                pts.fields["m"], s0, pts.n_owned, theta)
+        if len(self.clamp_faces):
+            lps_clamp_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                                 b.weight, pts.fields["m"], pts.n_owned, self.clamp_faces,
+                                 self.clamp, theta, theta_image)
+        return broken
 
     def update_state(self, pts) -> int:
-        b = pts.bonds
-        return lps_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                              pts.fields["m"], self.s0, pts.n_owned, self.theta)
+        return self._dilatation(pts, self.s0, self.theta, self.theta_image)
 
     def forces(self, pts, f) -> int:
         b = pts.bonds
         lps_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                    pts.fields["m"], self.theta, self.kappa, self.mu, pts.n_owned, f)
+        if len(self.clamp_faces):
+            lps_clamp_terms(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                            pts.fields["m"], self.theta, self.theta_image, self.kappa,
+                            self.mu, pts.n_owned, self.clamp_faces, self.clamp, f, False)
         return 0
 
-    def energy_density(self, pts, out=None) -> np.ndarray:
+    def _energy_density(self, pts, theta, out) -> np.ndarray:
         b = pts.bonds
-        out = np.empty(pts.n_owned) if out is None else out
         lps_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                           pts.fields["m"], self.theta, self.kappa, self.mu, pts.n_owned, out)
+                           pts.fields["m"], theta, self.kappa, self.mu, pts.n_owned, out)
+        if len(self.clamp_faces):
+            lps_clamp_terms(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
+                            pts.fields["m"], theta, self.theta_image, self.kappa, self.mu,
+                            pts.n_owned, self.clamp_faces, self.clamp, out.reshape(-1, 1),
+                            True)
         return out
+
+    def energy_density(self, pts, out=None) -> np.ndarray:
+        out = np.empty(pts.n_owned) if out is None else out
+        return self._energy_density(pts, self.theta, out)
 
     def strain_energy(self, pts) -> float:
         """sum_p V_p W_p over the owned points at their current positions, theta recomputed
         into scratch (the model's own theta, that of the last force pass, is left alone).
         Reads the intact bonds of ``pts`` as they are (the caller breaks the over-stretched
         ones on a copy first)."""
-        b = pts.bonds
         theta = np.zeros(len(pts.x))
-        lps_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                       pts.fields["m"], math.inf, pts.n_owned, theta)
-        out = np.empty(pts.n_owned)
-        lps_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                           pts.fields["m"], theta, self.kappa, self.mu, pts.n_owned, out)
+        image = np.zeros((len(pts.x), len(self.clamp_faces)))
+        self._dilatation(pts, math.inf, theta, image)
+        out = self._energy_density(pts, theta, np.empty(pts.n_owned))
         return float(np.dot(pts.vol[: pts.n_owned], out))

@@ -12,6 +12,11 @@ micropotential c s^2 |X| / 2). Failure (003 eq. 4.8) is tested in the force loop
 bond's force, so a bond that first exceeds s0 carries no force in that step, and both ends
 decide from bitwise equal stretches (geometry.py). An intact bond whose partner is not in the
 halo (slot -1) has stretched past the halo's reach and breaks (hpcmpm/parallel/pd_halo.py).
+
+The clamp at sticky walls (clamp.py; integral-based bodies): a particle within a horizon of
+such a wall is also bonded to the mirror images q' of itself and of its intact partners,
+with the same pair force c s w' V_p V_q Y'/|Y'| on the ghost bond's Y', X' (the bond force
+needs no state, so the ghost needs none either), and W_p counts those bonds as its own.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch
 from .geometry import bond_vectors, norm3
 
 
@@ -103,6 +109,29 @@ def pmb_energy_density(x, x0, offsets, slot, status, weight, vol, c, n_owned, ou
         out[p] = 0.25 * e
 
 
+@njit(cache=True, error_model="numpy")
+def pmb_clamp_terms(x, x0, vol, offsets, slot, status, c, n_owned, faces, clamp, f, energy):
+    """Add the clamp's ghost bonds (module docstring) of the owned points within reach of a
+    face in ``faces`` (nf, 2): their forces to f (n_owned, d), or with ``energy`` their
+    1/4 c w' s^2 |X'| V_q to f[:, 0] (the energy density of `pmb_energy_density`)."""
+    dim = x.shape[1]
+    GX, GY, GW, GQ = ghost_scratch(offsets, faces)
+    for p in range(n_owned):
+        for fc in range(faces.shape[0]):
+            ng = ghost_family(x, x0, offsets, slot, status, p, int(faces[fc, 0]),
+                              faces[fc, 1], clamp, GX, GY, GW, GQ)
+            for g in range(ng):
+                xl = norm3(GX[g, 0], GX[g, 1], GX[g, 2])
+                yl = norm3(GY[g, 0], GY[g, 1], GY[g, 2])
+                s = (yl - xl) / xl
+                if energy:
+                    f[p, 0] += 0.25 * c * GW[g] * s * s * xl * vol[GQ[g]]
+                    continue
+                a = c * s * GW[g] * (vol[p] * vol[GQ[g]]) / yl
+                for i in range(dim):
+                    f[p, i] += a * GY[g, i]
+
+
 class PMB:
     """PMB model over a points view (see integrator.PDPoints).
 
@@ -110,15 +139,20 @@ class PMB:
     ----------
     c : micromodulus (moduli.pmb_micromodulus).
     critical_stretch : s0 (inf: no failure).
+    clamp_faces, clamp : the sticky walls, (axis, plane) rows, and the `clamp.clamp_parameters`
+        of the ghost bonds that clamp the body there (clamp.py; default: no clamp).
     """
 
     name = "pmb"
     persistent_fields: tuple[str, ...] = ()
     halo_fields: tuple[str, ...] = ()
 
-    def __init__(self, c: float, critical_stretch: float = math.inf):
+    def __init__(self, c: float, critical_stretch: float = math.inf, clamp_faces=NO_FACES,
+                 clamp=NO_CLAMP):
         self.c = float(c)
         self.s0 = float(critical_stretch)
+        self.clamp_faces = np.ascontiguousarray(clamp_faces, dtype=np.float64)
+        self.clamp = np.ascontiguousarray(clamp, dtype=np.float64)
 
     def time_step_micromodulus(self) -> float:
         return self.c
@@ -135,14 +169,21 @@ class PMB:
 
     def forces(self, pts, f) -> int:
         b = pts.bonds
-        return pmb_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                          self.c, self.s0, pts.n_owned, f)
+        broken = pmb_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
+                            self.c, self.s0, pts.n_owned, f)
+        if len(self.clamp_faces):       # after failure: a ghost is intact while its source is
+            pmb_clamp_terms(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, self.c,
+                            pts.n_owned, self.clamp_faces, self.clamp, f, False)
+        return broken
 
     def energy_density(self, pts, out=None) -> np.ndarray:
         b = pts.bonds
         out = np.empty(pts.n_owned) if out is None else out
         pmb_energy_density(pts.x, pts.x0, b.offsets, b.slot, b.status, b.weight, pts.vol,
                            self.c, pts.n_owned, out)
+        if len(self.clamp_faces):
+            pmb_clamp_terms(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, self.c,
+                            pts.n_owned, self.clamp_faces, self.clamp, out.reshape(-1, 1), True)
         return out
 
     def strain_energy(self, pts) -> float:
