@@ -88,7 +88,7 @@ def test_clamp_on_bond_models(model, E, nu):
     cut = [error(c, "none") for c in (25, 50)]
     print(f"{model} bar, lattice period {ref:.5f}: errors with the clamp {clamped}, "
           f"without {cut}")
-    # Measured: PMB 4.6e-4, 8.0e-5 (8.7e-6 at 100 cells); LPS 2.7e-4, 3.6e-5 (6.4e-6).
+    # Measured: PMB 4.5e-4, 8.4e-5 (8.9e-6 at 100 cells); LPS 2.7e-4, 3.6e-5 (6.4e-6).
     # Halving dx must cut the error by more than 2^1.5 (second order with margin).
     assert clamped[0] < 1e-3
     assert clamped[1] < clamped[0] / 2 ** 1.5
