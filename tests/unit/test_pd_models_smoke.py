@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -58,3 +60,22 @@ def test_kalthoff_winkler_angle_extrapolation():
     assert math.isclose(extrapolated_angle([1e-3, 0.5e-3], [60.0, 65.0]), 70.0, rel_tol=1e-12)
     assert math.isnan(extrapolated_angle([1e-3, 0.5e-3], [60.0, math.nan]))
 
+
+
+def test_kalthoff_winkler_notch_gap():
+    """--notch-width cuts each notch as a gap: at 1 mm spacing a 2 mm gap leaves out the two
+    rows beside each notch line (y = +-24.5 and +-25.5 mm) for its 50 columns, and nothing
+    beyond the notch tip (x > 50 mm) or beside the gap."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    from study_kalthoff_winkler import plate
+
+    full, _ = plate(1e-3)
+    cut, ids = plate(1e-3, notch_width=2e-3)
+    assert len(full) - len(cut) == 2 * 2 * 50
+    assert np.array_equal(ids, np.arange(len(cut)))
+    def tenths_of_mm(points):
+        return {tuple(p) for p in np.rint(points * 1e4).astype(int)}
+
+    gone = np.array(sorted(tenths_of_mm(full) - tenths_of_mm(cut)))
+    assert set(np.abs(gone[:, 1])) == {245, 255}
+    assert gone[:, 0].max() < 500
