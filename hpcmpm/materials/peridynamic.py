@@ -36,7 +36,8 @@ import math
 
 import numpy as np
 
-from ..pd.clamp import NO_CLAMP, NO_FACES, clamp_parameters, sticky_faces
+from ..pd.clamp import (NO_CLAMP, NO_FACES, clamp_parameters, faces_within_reach,
+                         sticky_faces)
 from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, half_bonds_per_particle,
                            influence_code)
 from ..pd import moduli
@@ -201,7 +202,13 @@ class Peridynamic(Material):
             self.stress_model = make_material(
                 scene.materials[names.index(prm["stress_material"])], self.dim)
         if prm["clamp"] != "none" and self.clamp_supported(prm):
-            self.clamp_faces = sticky_faces(scene)
+            from ..scene import body_bounds
+
+            # Only the walls this material's bodies start within a family radius of.
+            boxes = [body_bounds(b.shape, b.params, self.dim) for b in scene.bodies
+                     if b.material == self.spec.name]
+            reach = self.delta + (0.5 * self.spacing if prm["partial_volumes"] else 0.0)
+            self.clamp_faces = faces_within_reach(sticky_faces(scene), boxes, reach)
 
     def clamp_array(self) -> np.ndarray:
         """The kernels' clamp parameters (clamp.clamp_parameters); unused without faces."""

@@ -74,6 +74,22 @@ def sticky_faces(scene) -> np.ndarray:
     return np.array(faces, dtype=np.float64).reshape(-1, 2)
 
 
+def faces_within_reach(faces: np.ndarray, boxes, reach: float) -> np.ndarray:
+    """The rows of ``faces`` that one of the bounding boxes ``boxes`` ((lower, upper) pairs)
+    comes within ``reach`` of: a body farther from a wall than its family radius gets no
+    ghost bonds there, so it need not carry the clamp's state or work for that wall."""
+    keep = []
+    for k, (axis, plane) in enumerate(faces):
+        for lo, hi in boxes:
+            a = int(axis)
+            gap = 0.0 if lo[a] <= plane <= hi[a] else min(abs(lo[a] - plane),
+                                                          abs(hi[a] - plane))
+            if gap < reach:
+                keep.append(k)
+                break
+    return np.ascontiguousarray(faces[keep], dtype=np.float64).reshape(-1, 2)
+
+
 @njit(cache=True, error_model="numpy")
 def ghost_source(offsets, status, slot, p, k):
     """The k-th ghost source of p, k in offsets[p] - 1 .. offsets[p + 1] - 1: p itself

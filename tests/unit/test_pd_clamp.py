@@ -204,3 +204,19 @@ def test_clamped_body_equals_the_body_continued_through_the_wall(name, dim, infl
         f_naive = np.zeros_like(f)
         model.forces(pts, f_naive)
         assert np.abs(f_naive - f2).max() > 1e-3 * scale
+
+
+def test_a_wall_beyond_every_body_reach_gets_no_clamp():
+    """`faces_within_reach`: a wall is kept when a body's bounding box comes closer to it
+    than the family radius (or straddles its plane), dropped otherwise, so a body that
+    starts away from every sticky wall runs no clamp kernels and refreshes no image
+    dilatations."""
+    from hpcmpm.pd.clamp import faces_within_reach
+
+    faces = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]])
+    box = ((0.02, 0.3), (0.5, 0.96))                 # 0.02 from x = 0, 0.04 from y = 1
+    np.testing.assert_array_equal(faces_within_reach(faces, [box], 0.035), faces[[0]])
+    np.testing.assert_array_equal(faces_within_reach(faces, [box], 0.045), faces[[0, 3]])
+    far = ((0.4, 0.4), (0.6, 0.6))
+    assert faces_within_reach(faces, [far], 0.035).shape == (0, 2)
+    np.testing.assert_array_equal(faces_within_reach(faces, [far, box], 0.035), faces[[0]])
