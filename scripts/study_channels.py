@@ -6,6 +6,7 @@
     python scripts/study_channels.py bingham hb   # plug flows at t = 10: profile and plug width
     python scripts/study_channels.py hb --times 10 15 20 --set simulation.particles_per_cell=3
     python scripts/study_channels.py newtonian --times 5 10 15 20 25 30   # the growing mode
+    python scripts/study_channels.py hb --times 10 15 20 25 30 --hold-rows  # without it
     python scripts/study_channels.py all [--smoke]
 
 Scenes: inputs/channel_{newtonian,bingham,hb}_2d.toml (periodic x, sticky walls at y = 0, 1,
@@ -68,8 +69,19 @@ def plug_half_width(p, sigma_y):
     return float(s[order_s][first_yielded - 1]) if first_yielded else 0.0
 
 
-def run_to(scene_path, times, overrides=()):
-    """Simulate and return {t: (y, vx, particle fields copy)} at each of ``times``."""
+def hold_rows(sim):
+    """Put every particle back on its lattice row across the channel (y only; its x, v and
+    state are left as they are): the flow's rows still slide past each other along x, but
+    no particle drifts across the streamlines. The held-rows experiment of docs/studies.md,
+    which keeps the wall layers' mode away; an observer for studies, not part of the scene."""
+    h = sim.dx / sim.scene.particles_per_cell
+    y = sim.particles["x"][:, 1]
+    y[:] = (np.rint(y / h - 0.5) + 0.5) * h
+
+
+def run_to(scene_path, times, overrides=(), hold=False):
+    """Simulate and return {t: (y, vx, particle fields copy)} at each of ``times``; ``hold``
+    holds the particles on their rows after every step (`hold_rows`)."""
     times = sorted(times)
     every = times[0] if len(times) == 1 else min(np.diff([0.0] + times))
     scene = load_scene(scene_path, [f"simulation.end_time={times[-1]}",
@@ -77,6 +89,8 @@ def run_to(scene_path, times, overrides=()):
     snaps, cg = {}, []
 
     def observe(sim):
+        if hold:
+            hold_rows(sim)
         cg.append(getattr(sim.integrator, "last_step", {}).get("cg_iterations", 0))
         for t in times:
             if abs(sim.time - t) < 1e-9 * max(t, 1) and t not in snaps:
@@ -139,9 +153,9 @@ def order(results, smoke):
           f"{['%.3f' % o for o in orders]}")
 
 
-def plug(results, smoke, name, n, overrides=(), label=None, times=(10.0,)):
+def plug(results, smoke, name, n, overrides=(), label=None, times=(10.0,), hold=False):
     times = [1.0] if smoke else sorted(times)
-    snaps, sim, wall, cg = run_to(SCENES[name], times, overrides)
+    snaps, sim, wall, cg = run_to(SCENES[name], times, overrides, hold)
     name = label or name
     dx = sim.dx
     for t in times:
@@ -177,6 +191,9 @@ def main(argv=None):
                         help="scene override for the plug flows, e.g. simulation.dt=0.02 or "
                              "materials.0.flow_update=\"explicit\" (repeatable)")
     parser.add_argument("--tag", default="", help="suffix of the plug flows' result names")
+    parser.add_argument("--hold-rows", action="store_true",
+                        help="plug flows with every particle held on its row across the "
+                             "channel after each step (the held-rows experiment)")
     parser.add_argument("--times", type=float, nargs="+", default=None,
                         help="times at which the newtonian and plug flows are compared "
                              "(default 1 and 10, and 10)")
@@ -193,10 +210,12 @@ def main(argv=None):
         elif item in ("bingham", "hb"):
             n = 1.0 if item == "bingham" else 0.5
             overrides = list(args.set)
-            label = item + ("_explicit" if args.explicit else "") + args.tag
+            label = item + ("_explicit" if args.explicit else "") + \
+                ("_held_rows" if args.hold_rows else "") + args.tag
             if args.explicit:
                 overrides.append('simulation.integrator="explicit"')
-            plug(results, args.smoke, item, n, overrides, label, args.times or [10.0])
+            plug(results, args.smoke, item, n, overrides, label, args.times or [10.0],
+                 args.hold_rows)
     out = ROOT / "bench_results"
     out.mkdir(exist_ok=True)
     path = out / ("study_channels_smoke.json" if args.smoke else "study_channels.json")
