@@ -32,9 +32,10 @@ by the odd extension, exactly, under any displacement (tests/unit/test_pd_clamp.
 
 Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based correspondence, PMB and
 LPS bodies (``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
-key). The kernels take the clamp as ``clamp_parameters``: the horizon,
-the particle spacing, the influence function and whether partial volumes are on, so that a
-ghost's weight follows the rule its source family was built with (families.py).
+key, with the walls its bodies start within reach of: `faces_within_reach`). The kernels
+take the clamp as ``clamp_parameters``: the horizon, the particle spacing, the influence
+function and whether partial volumes are on, so that a ghost's weight follows the rule its
+source family was built with (families.py).
 """
 
 from __future__ import annotations
