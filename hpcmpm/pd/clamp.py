@@ -75,6 +75,14 @@ def sticky_faces(scene) -> np.ndarray:
     return np.array(faces, dtype=np.float64).reshape(-1, 2)
 
 
+def face_names(faces: np.ndarray, scene) -> list[str]:
+    """The scene's names of the walls in ``faces`` (x_lower, y_upper, ...)."""
+    from ..scene import FACE_NAMES
+
+    return [FACE_NAMES[2 * int(axis) + (plane == scene.domain_hi[int(axis)])]
+            for axis, plane in faces]
+
+
 def faces_within_reach(faces: np.ndarray, boxes, reach: float) -> np.ndarray:
     """The rows of ``faces`` that one of the bounding boxes ``boxes`` ((lower, upper) pairs)
     comes within ``reach`` of: a body farther from a wall than its family radius gets no

@@ -33,6 +33,7 @@ from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
 from .boundary import impose_prescribed_velocity
+from .clamp import face_names
 from .contact import ParticleColliders, ParticleWalls
 from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
@@ -140,6 +141,12 @@ class PDExtension:
             log.warning("%s: warning: %d particle(s) of material %r have no bond (horizon "
                         "%.4g, spacing %.4g): they move freely", self._where(), lonely,
                         self.material.spec.name, self.material.delta, self.material.spacing)
+        faces = getattr(self.model, "clamp_faces", ())
+        if len(faces) and self.sim.domain.rank == 0:
+            # The default clamp = "auto" changes the physics at a wall: say where it acts.
+            log.info("material %r: PD clamp (mirror-image bonds) at the sticky walls %s; "
+                     "clamp = \"none\" turns it off", self.material.spec.name,
+                     ", ".join(face_names(faces, self.sim.scene)))
         # The halo was built before the persistent fields existed: ship them now.
         self._rebuild(start, stop)
 

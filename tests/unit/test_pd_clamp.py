@@ -220,3 +220,16 @@ def test_a_wall_beyond_every_body_reach_gets_no_clamp():
     far = ((0.4, 0.4), (0.6, 0.6))
     assert faces_within_reach(faces, [far], 0.035).shape == (0, 2)
     np.testing.assert_array_equal(faces_within_reach(faces, [far, box], 0.035), faces[[0]])
+
+
+def test_clamped_walls_are_named_as_in_the_scene():
+    """The run log names the walls a material is clamped at (the default clamp = "auto"
+    changes the physics there): ibmpm_bar_2d's sticky fixed end is x_lower, and the other
+    sticky faces of a scene map to their own names."""
+    from hpcmpm.pd.clamp import face_names, sticky_faces
+    from hpcmpm.scene import load_scene
+
+    bar = load_scene("inputs/ibmpm_bar_2d.toml")
+    assert face_names(sticky_faces(bar), bar) == ["x_lower"]
+    box = load_scene("inputs/ibmpm_disk_impact_2d.toml")   # every wall sticky
+    assert face_names(sticky_faces(box), box) == ["x_lower", "x_upper", "y_lower", "y_upper"]
