@@ -38,8 +38,8 @@ import numpy as np
 
 from ..pd.clamp import (NO_CLAMP, NO_FACES, clamp_parameters, faces_within_reach,
                          sticky_faces)
-from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, half_bonds_per_particle,
-                           influence_code)
+from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, family_radius,
+                           half_bonds_per_particle, influence_code)
 from ..pd import moduli
 from ..pd.load import ACTIVE_BONDS
 from ..state import SCALAR, VECTOR, FieldSpec
@@ -207,8 +207,8 @@ class Peridynamic(Material):
             # Only the walls this material's bodies start within a family radius of.
             boxes = [body_bounds(b.shape, b.params, self.dim) for b in scene.bodies
                      if b.material == self.spec.name]
-            reach = self.delta + (0.5 * self.spacing if prm["partial_volumes"] else 0.0)
-            self.clamp_faces = faces_within_reach(sticky_faces(scene), boxes, reach)
+            self.clamp_faces = faces_within_reach(sticky_faces(scene), boxes,
+                                                  self.family_radius())
 
     def clamp_array(self) -> np.ndarray:
         """The kernels' clamp parameters (clamp.clamp_parameters); unused without faces."""
@@ -217,6 +217,10 @@ class Peridynamic(Material):
         prm = self.params
         return clamp_parameters(self.delta, self.spacing, influence_code(prm["influence"]),
                                 bool(prm["partial_volumes"]))
+
+    def family_radius(self) -> float:
+        """The largest bond length of this material's families (families.family_radius)."""
+        return family_radius(self.delta, self.spacing, self.params["partial_volumes"])
 
     def half_bonds_per_particle(self) -> int:
         """Half-bonds of an interior particle (the memory estimate before allocation)."""
@@ -303,7 +307,7 @@ class Peridynamic(Material):
         """0.8 sqrt(2 rho / sum_q V_q c w/|X|) over a full lattice family (the most bonds a
         particle has; the issue's rule), the same on every rank."""
         h = self.spacing
-        r = self.delta + 0.5 * h if self.params["partial_volumes"] else self.delta
+        r = self.family_radius()
         k = int(math.ceil(r / h))
         axis = np.arange(-k, k + 1) * h
         grids = np.meshgrid(*[axis] * self.dim, indexing="ij")

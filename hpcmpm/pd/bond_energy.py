@@ -61,7 +61,7 @@ from numba import njit
 
 from .clamp import NO_CLAMP, NO_FACES
 from .correspondence import correspondence_kinematics
-from .families import INFLUENCES
+from .families import INFLUENCES, family_radius
 from .geometry import bond_vectors, norm3
 
 PLASTIC_STATE = "plastic_stretch"
@@ -72,7 +72,7 @@ def full_family_sum(dim: int, spacing: float, delta: float, influence: str = "co
     """sum_q w |X|^power V_q over the family of a lattice point with a complete neighbourhood
     (cubic lattice of ``spacing``, V_q = spacing^d, the families.py bond rule)."""
     h = spacing
-    r = delta + 0.5 * h if partial_volumes else delta
+    r = family_radius(delta, h, partial_volumes)
     k = int(math.ceil(r / h))
     axis = np.arange(-k, k + 1) * h
     grids = np.meshgrid(*[axis] * dim, indexing="ij")

@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .families import influence, partial_volume
+from .families import family_radius, influence, partial_volume
 from .geometry import norm3
 
 NO_FACES = np.zeros((0, 2))
@@ -61,7 +61,7 @@ def clamp_parameters(delta: float, spacing: float, influence_code: int,
 @njit(cache=True, error_model="numpy")
 def clamp_reach(clamp):
     """Distance from a wall within which a particle has ghost bonds: its family radius."""
-    return clamp[0] + 0.5 * clamp[1] if clamp[3] != 0.0 else clamp[0]
+    return family_radius(clamp[0], clamp[1], clamp[3] != 0.0)
 
 
 def sticky_faces(scene) -> np.ndarray:
@@ -89,8 +89,8 @@ def faces_within_reach(faces: np.ndarray, boxes, reach: float) -> np.ndarray:
     ghost bonds there, so it need not carry the clamp's state or work for that wall."""
     keep = []
     for k, (axis, plane) in enumerate(faces):
+        a = int(axis)
         for lo, hi in boxes:
-            a = int(axis)
             gap = 0.0 if lo[a] <= plane <= hi[a] else min(abs(lo[a] - plane),
                                                           abs(hi[a] - plane))
             if gap < reach:

@@ -238,10 +238,9 @@ class CrackPlanes:
 def _crack_planes_of(ext) -> CrackPlanes:
     material, sim = ext.material, ext.sim
     prm = material.params
-    radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
-        else material.delta
     return CrackPlanes(prm["crack_threshold"], sim.dx, sim.domain_lo,
-                       max(sim.dx, material.delta), radius * (1.0 + prm["max_bond_stretch"]))
+                       max(sim.dx, material.delta),
+                       material.family_radius() * (1.0 + prm["max_bond_stretch"]))
 
 
 class CrackPlaneForces:

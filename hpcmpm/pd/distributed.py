@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from ..parallel.pd_halo import PDHalo, migrate_with_bonds
-from .families import find_families
+from .families import family_radius, find_families
 from .geometry import damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 from .moduli import silling_askari_steps
@@ -44,7 +44,7 @@ class DistributedPDBody:
         self.particles = particles
         self.model = model
         model.s0 = min(model.s0, float(max_bond_stretch))
-        radius = delta + 0.5 * spacing if partial_volumes else delta
+        radius = family_radius(delta, spacing, partial_volumes)
         self.skin = 0.5 * spacing if skin is None else float(skin)
         # s_reach: the critical stretch, or max_bond_stretch when that is smaller.
         self.halo = PDHalo(domain, radius * (1.0 + model.s0), self.skin)

@@ -41,6 +41,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .families import partial_volume
 from .geometry import bond_vectors, norm3
 
 FAILURES = ("energy", "work", "stretch")
@@ -52,14 +53,6 @@ def critical_bond_energy(dim: int, G_c: float, delta: float, thickness: float = 
     if dim == 2:
         return 3.0 * G_c / (2.0 * thickness * delta ** 3)
     return 4.0 * G_c / (math.pi * delta ** 4)
-
-
-@njit(cache=True, error_model="numpy")
-def edge_fraction(r, delta, spacing, partial_volumes):
-    """beta(|X|), the partial-volume fraction of families.partial_volume."""
-    if not partial_volumes or r <= delta - 0.5 * spacing:
-        return 1.0
-    return (delta + 0.5 * spacing - r) / spacing
 
 
 @njit(cache=True, error_model="numpy")
@@ -106,7 +99,7 @@ def energy_failure(x, x0, offsets, slot, status, weight, A, n_owned, Wc, delta, 
                 t0[b], t1[b], t2[b] = T0, T1, T2
             else:
                 W = T0 * (Y0 - X0) + T1 * (Y1 - X1) + T2 * (Y2 - X2)
-            limit = edge_fraction(norm3(X0, X1, X2), delta, spacing, partial_volumes) * \
+            limit = partial_volume(norm3(X0, X1, X2), delta, spacing, partial_volumes) * \
                 min(Wc[p], Wc[q])
             margin = min(margin, abs(W - limit) / limit)
             if W > limit:

@@ -54,8 +54,7 @@ class PDExtension:
         self.model = material.make_model()
         self.persistent = tuple(self.model.persistent_fields)
         prm = material.params
-        self.radius = material.delta + 0.5 * material.spacing if prm["partial_volumes"] \
-            else material.delta
+        self.radius = material.family_radius()
         # s_reach = the critical stretch, or max_bond_stretch when smaller (the model's s0).
         self.reach = self.radius * (1.0 + self.model.s0)
         self.skin = prm["skin"] * material.spacing

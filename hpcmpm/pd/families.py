@@ -59,6 +59,13 @@ def influence(code, r, delta):
 
 
 @njit(cache=True, error_model="numpy")
+def family_radius(delta, spacing, partial_volumes):
+    """The largest bond length of a family: delta, or delta + spacing/2 with partial volumes
+    (PA-HHB: a neighbour whose cell the horizon cuts is in, with a fraction of its volume)."""
+    return delta + 0.5 * spacing if partial_volumes else delta
+
+
+@njit(cache=True, error_model="numpy")
 def partial_volume(r, delta, dx, on):
     """beta(|X|): PA-HHB partial-volume fraction (module docstring); 1 inside when ``on`` is
     False (the caller then only passes |X| <= delta)."""
@@ -145,7 +152,7 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
     dim = x0.shape[1]
     if delta < spacing:
         raise ValueError(f"horizon {delta:g} is below one particle spacing {spacing:g}")
-    radius = delta + 0.5 * spacing if partial_volumes else delta
+    radius = family_radius(delta, spacing, partial_volumes)
     image_source = image_shift = None
     if period is not None:
         period = np.asarray(period, dtype=np.float64)

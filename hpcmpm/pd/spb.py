@@ -77,7 +77,7 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
-from .families import find_families, half_bonds_per_particle
+from .families import family_radius, find_families, half_bonds_per_particle
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
 from .load import add_bond_load, bond_cost
 from .moduli import equivalent_micromodulus, pmb_micromodulus
@@ -111,7 +111,7 @@ class SPBExtension(CheckpointedBonds):
         self.spacing = sim.dx / sim.scene.particles_per_cell
         self.delta = f0["horizon"] * self.spacing
         self.l0 = self.delta
-        self.radius = self.delta + 0.5 * self.spacing          # PA-HHB family radius
+        self.radius = family_radius(self.delta, self.spacing, True)   # PA-HHB
         self.s_reach = f0["max_bond_stretch"]
         self.s0 = min(f0["critical_stretch"], self.s_reach) if self.failure == "stretch" \
             else self.s_reach

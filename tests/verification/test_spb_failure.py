@@ -9,7 +9,7 @@ import pytest
 
 from hpcmpm.pd import energy_failure as ef
 from hpcmpm.pd.correspondence import Correspondence
-from hpcmpm.pd.families import find_families
+from hpcmpm.pd.families import find_families, partial_volume
 from hpcmpm.pd.integrator import PDBody
 from pd_helpers import hhb_offsets, lattice, linear_elastic_stress
 
@@ -138,7 +138,7 @@ def test_critical_energy_of_bonds_across_a_plane(dim):
     vol = h if dim == 2 else 1.0
     area = n ** (dim - 1) * (h if dim == 2 else 1.0)
     Wc = ef.critical_bond_energy(dim, G_C, DELTA, h)
-    beta = np.array([ef.edge_fraction(ri, DELTA, 1.0, True) for ri in r[crossing]])
+    beta = np.array([partial_volume(ri, DELTA, 1.0, True) for ri in r[crossing]])
     G_code = np.sum(beta * Wc * vol * vol) / area
 
     # Independently: lattice offsets xi with xi_x > 0 cross a plane xi_x times per unit
