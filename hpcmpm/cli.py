@@ -95,7 +95,8 @@ def _plot(args) -> int:
     return plot_command(args)
 
 
-DESCRIPTION = ("hpcmpm: an MPI-distributed Material Point Method (MPM) solver with numba kernels. "
+DESCRIPTION = ("hpcmpm: an MPI-distributed Material Point Method (MPM) solver with peridynamics "
+               "and numba kernels. "
                "Runs TOML scenes on any number of ranks (mpiexec -n N hpcmpm run SCENE), writes "
                "HDF5 frames with an XDMF series for ParaView and checkpoints that restart on any "
                "rank count.")
@@ -180,7 +181,10 @@ def build_parser() -> argparse.ArgumentParser:
     job.add_argument("extra", nargs="*", help="extra `hpcmpm run` arguments (after --)")
     job.set_defaults(handler=_jobscript)
 
-    render = verbs.add_parser("render", help="pictures and a movie of a run (docs/output.md)")
+    render = verbs.add_parser("render", help="pictures and a movie of a run (docs/output.md)",
+                              description="A PNG of each frame of a run, coloured by a field, "
+                                          "and a movie of them; the frames are split between "
+                                          "the MPI ranks.")
     render.add_argument("run_dir", help="a run's output folder (frames and particles.xdmf)")
     render.add_argument("--field", metavar="NAME[:COMPONENT]",
                         help="colour by this frame field (default speed), e.g. material, J, v:x")
@@ -195,7 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--quiet", action="store_true", help="no progress bar")
     render.set_defaults(handler=_render)
 
-    plot = verbs.add_parser("plot", help="time series of a run's diagnostics to PNG + CSV")
+    plot = verbs.add_parser("plot", help="time series of a run's diagnostics to PNG + CSV",
+                            description="The frames' diagnostics (mass, momentum, energies, "
+                                        "solver counts) over time: diagnostics.csv and "
+                                        "diagnostics.png.")
     plot.add_argument("run_dir", help="a run's output folder (frames)")
     plot.add_argument("--out", help="output folder (default RUN_DIR)")
     plot.set_defaults(handler=_plot)

@@ -113,10 +113,11 @@ def jobscript_command(args, parser) -> int:
     if output:
         Path(output).write_text(text)
         Path(output).chmod(0o755)
-        print(f"wrote {output} (created {log_dir}/ for its log); submit from this folder with "
+        print(f"wrote {output} (created {log_dir}/ for its log); submit it from {Path.cwd()} "
+              f"(the relative paths in it start there): "
               f"{'sbatch' if args.scheduler == 'slurm' else 'qsub'} {output}")
     else:
         sys.stdout.write(text)
-        print(f"hpcmpm: created {log_dir}/ for the job's log; submit from this folder",
-              file=sys.stderr)
+        print(f"hpcmpm: created {log_dir}/ for the job's log; submit the script from "
+              f"{Path.cwd()} (the relative paths in it start there)", file=sys.stderr)
     return 0

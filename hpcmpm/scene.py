@@ -152,9 +152,12 @@ class Checker:
     def __init__(self, file: str):
         self.file = file
         self.problems: list[str] = []
+        self.origins: dict[str, str] = {}     # path -> the --set item that gave its value
 
     def problem(self, path: str, message: str) -> None:
-        self.problems.append(f"{self.file}: {path}: {message}")
+        origin = self.origins.get(path)
+        source = f" (from --set {origin})" if origin else ""
+        self.problems.append(f"{self.file}: {path}: {message}{source}")
 
     def keys(self, table: dict, path: str, allowed: Sequence[str]) -> None:
         for key in table:
@@ -298,8 +301,11 @@ def _describe(value: Any) -> str:
 
 
 # -- overrides --------------------------------------------------------------------------------
-def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]:
-    """Apply ``key.path=value`` strings in place; returns problems."""
+def apply_overrides(raw: dict, overrides: Sequence[str], file: str,
+                    origins: dict[str, str] | None = None) -> list[str]:
+    """Apply ``key.path=value`` strings in place; returns problems. ``origins`` gets, for
+    each value set, its path as the Checker writes it (``materials[0].E``) -> the ``--set``
+    item, so that a problem with that value names the command line, not only the file."""
     problems = []
     for item in overrides:
         key, sep, text = item.partition("=")
@@ -313,14 +319,17 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]
         parts = key.split(".")
         node: Any = raw
         problem = None
+        where = ""
         for depth, part in enumerate(parts[:-1]):
             if isinstance(node, list):
                 index, problem = _entry_index(node, part, parts[depth - 1] if depth else "")
                 if problem:
                     break
                 node = node[index]
+                where += f"[{index}]"
             elif isinstance(node, dict):
                 node = node.setdefault(part, {})
+                where += f".{part}" if where else part
             else:
                 problem = "no such key"
                 break
@@ -329,12 +338,16 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str) -> list[str]
             index, problem = _entry_index(node, last, parts[-2] if len(parts) > 1 else "")
             if problem is None:
                 node[index] = value
+                where += f"[{index}]"
         elif problem is None and isinstance(node, dict):
             node[last] = value
+            where += f".{last}" if where else last
         elif problem is None:
             problem = "no such key"
         if problem:
             problems.append(f"{file}: --set {key}: {problem}")
+        elif origins is not None:
+            origins[where] = item
     return problems
 
 
@@ -825,7 +838,7 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{file}: TOML syntax error: {exc}") from None
     c = Checker(file)
-    c.problems.extend(apply_overrides(raw, overrides, file))
+    c.problems.extend(apply_overrides(raw, overrides, file, c.origins))
     c.keys(raw, "", TOP_KEYS)
     base_dir = base_dir or (Path(path).parent if path != "<string>" else Path("."))
     sim = _simulation(c, raw)

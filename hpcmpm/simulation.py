@@ -601,12 +601,14 @@ class Simulation:
 
     # -- diagnostics -----------------------------------------------------------------------
     def diagnostics(self) -> dict[str, float]:
-        """Global mass, linear/angular momentum, kinetic and elastic energy."""
+        """Global mass, linear/angular momentum, kinetic, elastic and gravitational energy
+        (-sum m g.x, zero at the origin), and their sum. Work done by walls, colliders,
+        prescribed sets and forcing is not counted."""
         p = self.particles
         self.ensure_grouped()
         with_affine = self.scheme >= APIC
         inertia = self.dx * self.dx / self.dinv_factor
-        local = np.zeros(9)
+        local = np.zeros(10)
         local[0] = p["mass"].sum()
         local[1:8] = momentum_and_kinetic_energy(
             p["x"], p["v"], p["mass"], p["C"] if with_affine else self._dummy_C, with_affine,
@@ -616,12 +618,15 @@ class Simulation:
         # Energy held outside the particle fields (peridynamic bonds); collective.
         local[8] += sum(e.strain_energy(self) for e in self.extensions
                         if hasattr(e, "strain_energy"))
+        g = self.gravity[:self.dim]
+        if np.any(g != 0.0):
+            local[9] = -float(p["mass"] @ (p["x"] @ g))
         total = self.domain.sum(local)
         out = {
             "mass": total[0],
             "momentum": total[1:4].copy(), "angular_momentum": total[4:7].copy(),
             "kinetic_energy": total[7], "elastic_energy": total[8],
-            "total_energy": total[7] + total[8],
+            "gravity_energy": total[9], "total_energy": total[7] + total[8] + total[9],
         }
         # The integrator's own figures (semi-implicit: CG iterations per step since the
         # previous call, i.e. since the previous frame in a run); the same on every rank.

@@ -202,7 +202,7 @@ def read_checkpoint(path, domain) -> tuple[dict[str, np.ndarray], dict[str, Any]
 
 def _read_share(path: Path, rank: int, size: int):
     if not path.exists():
-        raise CheckpointError(f"{path}: no such checkpoint")
+        raise NotACheckpoint(_missing(path))
     try:
         h5 = h5py.File(path, "r")
     except OSError as exc:
@@ -257,7 +257,22 @@ def _stored_checksum(path: Path, dset: h5py.Dataset) -> str:
 
 
 class NotACheckpoint(CheckpointError):
-    """A frame given where a checkpoint is needed; the message names the checkpoint to use."""
+    """A frame or a missing file given where a checkpoint is needed; the message names the
+    checkpoint to use, where there is one."""
+
+
+def _missing(path: Path) -> str:
+    """What to say of a checkpoint path that does not exist: the folder's newest checkpoint
+    (a run without checkpoint_every writes only its last), or that the folder is missing."""
+    message = f"{path}: no such checkpoint"
+    if not path.parent.is_dir():
+        return f"{message} (no folder {path.parent})"
+    found = list_checkpoints(path.parent)
+    if found:
+        names = ", ".join(p.name for _, p in found[-3:])
+        return f"{message}; {path.parent} holds {names}" + \
+            (f" and {len(found) - 3} earlier" if len(found) > 3 else "")
+    return f"{message}; {path.parent} holds no checkpoint"
 
 
 def _checkpoint_for_frame(path: Path, step: int) -> str:

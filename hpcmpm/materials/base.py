@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import SceneError
 from ..state import FieldSpec
 from .failure import SPB_FAILURE, attach_failure, no_pd_stress_problem
-from .params import POISSON, YOUNG, Param, check_params, lame, resolve_params
+from .params import POISSON, YOUNG, MATERIAL_TABLE_KEYS, Param, check_params, lame, resolve_params
 
 
 class Material:
@@ -85,7 +85,7 @@ class Material:
         if "failure" in params and "failure" not in cls.parameters:
             problems.append(no_pd_stress_problem(cls.name))   # SPB-MPM, materials/failure.py
             params.pop("failure")
-        return problems + check_params(cls.parameters, params)
+        return problems + check_params(cls.parameters, params, MATERIAL_TABLE_KEYS)
 
     @classmethod
     def scene_problems(cls, spec, scene) -> list[str]:

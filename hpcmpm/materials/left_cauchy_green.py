@@ -70,7 +70,7 @@ from .base import Material
 from . import isochoric_return as implicit_return
 from .matrix import (EYE, add, add_identity, axpy, ddot, det, dim_of, inverse, load, mul,
                      mul_bt, root_d, scale, store, sub, sym, trace, transpose)
-from .params import POISSON, YOUNG, Param, check_params, choice, lame
+from .params import POISSON, YOUNG, MATERIAL_TABLE_KEYS, Param, check_params, choice, lame
 
 OB_EXPLICIT, OB_SPD, FE, FE_BDF2, HB, VM = 0, 1, 2, 3, 4, 5
 # Implicit isochoric return (isochoric_return.py): Herschel-Bulkley, and von Mises with eta = 0.
@@ -490,7 +490,7 @@ class LeftCauchyGreenMaterial(Material):
     @classmethod
     def parameter_problems(cls, params: dict[str, Any]) -> list[str]:
         """The schema check plus "mu and lambda, or E and nu" (one pair, both keys)."""
-        problems = check_params(cls.parameters, params)
+        problems = check_params(cls.parameters, params, MATERIAL_TABLE_KEYS)
         lame_pair = [k for k in ("mu", "lambda") if k in params]
         young_pair = [k for k in ("E", "nu") if k in params]
         if lame_pair and young_pair:

@@ -81,21 +81,29 @@ def _number(value: Any) -> float | None:
     return x
 
 
-def check_params(parameters: dict[str, Param], params: dict[str, Any]) -> list[str]:
+# The keys of a [[materials]] table that the scene reads itself (scene.py) before a model's
+# schema sees the rest: a misspelling of one of them is hinted like any other key.
+MATERIAL_TABLE_KEYS = ("name", "type", "density")
+
+
+def check_params(parameters: dict[str, Param], params: dict[str, Any],
+                 also: tuple[str, ...] = ()) -> list[str]:
     """Problems with ``params`` against the schema ``parameters``: one string per missing,
     unknown, mistyped or out-of-range key; empty when all is well. Keys of sub-tables are
-    reported with their path (``eos.c0: must be > 0, got -1``)."""
+    reported with their path (``eos.c0: must be > 0, got -1``). ``also``: keys accepted
+    where ``params`` came from but checked elsewhere (hints name them too)."""
     problems = []
+    accepted = list(also) + list(parameters)
     for key in params:
         if key not in parameters:
-            close = difflib.get_close_matches(key, list(parameters), n=1, cutoff=0.5)
+            close = difflib.get_close_matches(key, accepted, n=1, cutoff=0.5)
             if not close:
                 # Short names such as "E" score low against typos such as "Eyoung"; a
                 # case-insensitive prefix is a good enough hint.
-                close = [k for k in parameters
+                close = [k for k in accepted
                          if key.lower().startswith(k.lower()) or k.lower().startswith(key.lower())]
             hint = f" (did you mean {close[0]!r}?)" if close else \
-                f" (accepted: {', '.join(parameters) or 'none'})"
+                f" (accepted: {', '.join(accepted) or 'none'})"
             problems.append(f"{key}: unknown key{hint}")
     for key, spec in parameters.items():
         if key not in params:

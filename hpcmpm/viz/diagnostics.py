@@ -20,7 +20,7 @@ from .plots import Curve, Panel, plot_panels
 from .series import RenderError, list_frames
 
 BOOKKEEPING = {"dim", "frame_index", "n_ranks"}
-ENERGIES = ("kinetic_energy", "elastic_energy", "total_energy")
+ENERGIES = ("kinetic_energy", "elastic_energy", "gravity_energy", "total_energy")
 
 
 def collect(run_dir) -> tuple[list[str], list[dict]]:
@@ -104,8 +104,8 @@ def diagnostic_panels(columns: list[str], rows: list[dict]) -> list[Panel]:
 def plot_run(run_dir, out=None) -> tuple[Path, Path]:
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else run_dir
+    columns, rows = collect(run_dir)      # first: a mistyped run folder is not created
     out.mkdir(parents=True, exist_ok=True)
-    columns, rows = collect(run_dir)
     if "time" not in columns:
         raise RenderError(f"{run_dir}: the frames carry no 'time' attribute")
     csv_path = write_csv(out / "diagnostics.csv", columns, rows)

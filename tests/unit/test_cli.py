@@ -83,7 +83,8 @@ def test_set_on_the_command_line_and_its_problems():
     proc = hpcmpm("validate", "inputs/disks_2d.toml", "--set", "simulation.cfl=abc")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip() == ("hpcmpm: error: inputs/disks_2d.toml: simulation.cfl: "
-                                   "must be a number, got string 'abc'")
+                                   "must be a number, got string 'abc' "
+                                   "(from --set simulation.cfl=abc)")
 
 
 def test_version_usage_and_bench_pass_through():

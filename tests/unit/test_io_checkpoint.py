@@ -143,8 +143,10 @@ def test_corrupted_bytes_are_detected(tmp_path, dataset, read_size):
 
 
 def test_missing_and_foreign_files(tmp_path):
-    with pytest.raises(CheckpointError, match="no such checkpoint"):
+    with pytest.raises(CheckpointError, match="no such checkpoint; .* holds no checkpoint$"):
         read(tmp_path / "ckpt_000000001.h5", 1)
+    with pytest.raises(CheckpointError, match=r"no such checkpoint \(no folder .*nope\)$"):
+        read(tmp_path / "nope" / "ckpt_000000001.h5", 1)
     foreign = tmp_path / "ckpt_000000002.h5"
     with h5py.File(foreign, "w") as h5:
         h5["x"] = 1
@@ -154,6 +156,18 @@ def test_missing_and_foreign_files(tmp_path):
     text.write_text("hello")
     with pytest.raises(CheckpointError, match="ckpt_000000003.h5: not a readable HDF5 file"):
         read(text, 2)
+
+
+def test_missing_checkpoint_names_the_ones_there(tmp_path):
+    # A run without checkpoint_every writes only its last checkpoint: a user who guesses
+    # another step's name is told which ones exist, not only which are "earlier".
+    for step in (100, 200, 300, 400):
+        write(tmp_path, 1, step=step, keep=10)
+    with pytest.raises(CheckpointError) as err:
+        read(tmp_path / checkpoint_name(250), 1)
+    assert str(err.value) == (f"{tmp_path / checkpoint_name(250)}: no such checkpoint; "
+                              f"{tmp_path} holds ckpt_000000200.h5, ckpt_000000300.h5, "
+                              "ckpt_000000400.h5 and 1 earlier")
 
 
 def test_unwritable_folder_is_a_checkpoint_error(tmp_path):

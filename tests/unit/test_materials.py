@@ -394,7 +394,10 @@ def test_validate_params_messages():
         ["theta_c: must be < 1, got 1", "theta_s: must be >= 0, got -1",
          "xi: must be a number, got string 'ten'"]
     assert validate_params("weakly_compressible", {"E": 1, "nu": 0.3}) == \
-        ["nu: unknown key (accepted: E)"]
+        ["nu: unknown key (accepted: name, type, density, E)"]
+    # The table keys the scene reads itself are hinted too (they are not the schema's).
+    assert validate_params("weakly_compressible", {"E": 1, "densty": 1}) == \
+        ["densty: unknown key (did you mean 'density'?)"]
     (problem,) = validate_params("neo_hookian", {})
     assert "did you mean 'neo_hookean'" in problem and "stable_neo_hookean" in problem
     # Every schema entry is a full Param (the scene validator relies on the format).

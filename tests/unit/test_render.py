@@ -257,8 +257,10 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         lines = err.strip().splitlines()
         assert code == 2 and len(lines) == 1, err
         assert lines[0].startswith(f"hpcmpm: error: {message}"), lines[0]
-    code, err = hpcmpm(capsys, "render", str(tmp_path / "nothing"))
-    assert code == 2 and "no such run folder" in err
+    for verb in ("render", "plot"):
+        code, err = hpcmpm(capsys, verb, str(tmp_path / "nothing"))
+        assert code == 2 and "no such run folder" in err, (verb, err)
+        assert not (tmp_path / "nothing").exists(), verb    # a typo makes no folder
 
 
 def test_frames_from_the_end_on_the_command_line(tmp_path, capsys):

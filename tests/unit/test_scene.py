@@ -185,15 +185,22 @@ def test_set_overrides_values_tables_and_list_items():
 
 
 def test_bad_overrides_are_reported_like_file_problems():
+    # A bad value that came from the command line says so: the file itself is fine.
     lines = problems(GOOD, ["simulation.cfl=abc", "materials.3.E=1", "nonsense",
-                            "simulation.cfll=0.3", "materials.steel.E=1"])
+                            "simulation.cfll=0.3", "materials.steel.E=1",
+                            "materials.rubber.nu=0.7", "bodies.1.velocity=2"])
     assert lines == [
         "scene.toml: --set materials.3.E: no entry 3 (materials has 1)",
         "scene.toml: --set nonsense: expected key.path=value",
         "scene.toml: --set materials.steel.E: no entry named 'steel' in materials (names: "
         "rubber; or give an index)",
-        "scene.toml: simulation.cfll: unknown key (did you mean 'cfl'?)",
-        "scene.toml: simulation.cfl: must be a number, got string 'abc'",
+        "scene.toml: simulation.cfll: unknown key (did you mean 'cfl'?) "
+        "(from --set simulation.cfll=0.3)",
+        "scene.toml: simulation.cfl: must be a number, got string 'abc' "
+        "(from --set simulation.cfl=abc)",
+        "scene.toml: materials[0].nu: must be < 0.5, got 0.7 (from --set materials.rubber.nu=0.7)",
+        "scene.toml: bodies[1].velocity: must be an array of 2 numbers, got int 2 "
+        "(from --set bodies.1.velocity=2)",
     ]
 
 
