@@ -3,9 +3,13 @@
 ``@pytest.mark.parallel(ranks=[1, 2, 4])`` parametrizes a test by rank count. A 1-rank case runs
 in this process. For N > 1 the parent pytest re-runs exactly that test under
 ``mpiexec -n N python -m mpi4py -m pytest <nodeid>`` in a subprocess with a timeout, so a
-deadlock fails instead of hanging, and maps the exit code to pass/fail (the child's output is
-shown on failure). Inside the child (``HPCMPM_MPI_CHILD=1``) the test body runs on every rank;
-``python -m mpi4py`` turns an uncaught exception on one rank into an abort of all of them.
+deadlock fails instead of hanging. A non-zero exit fails (the child's output is shown). Each rank
+of the child writes its test's outcome to a small file (hooks below, ``HPCMPM_MPI_RESULT_DIR``),
+and the parent passes, skips (with the child's reason, so ``-rs`` lists it) or xfails as every
+rank did; a child that exits 0 without every rank's file saying so, or whose ranks disagree,
+fails, so a test skipped in the child is never reported as passed. Inside the child (``HPCMPM_MPI_CHILD=1``) the test body runs
+on every rank; ``python -m mpi4py`` turns an uncaught exception on one rank into an abort of all
+of them.
 
 ``shared_tmp`` is a temporary folder that all ranks of one test see (the parent makes it and
 passes it down); ``tmp_path`` stays per process.
@@ -13,10 +17,13 @@ passes it down); ``tmp_path`` stays per process.
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -38,6 +45,8 @@ MPI_TIMEOUT = float(os.environ.get("HPCMPM_MPI_TIMEOUT", "240"))
 # not pytest-timeout, stops it (and kills its ranks, which pytest-timeout would orphan).
 TIMEOUT_MARGIN = 15
 WRONG_WORLD_SIZE = 17  # exit code of a child whose COMM_WORLD is not the size it was launched for
+# Folder where each rank of a harness child writes the outcome of its test (rank<r>.json).
+RESULT_ENV = "HPCMPM_MPI_RESULT_DIR"
 
 
 # Set by MPICH/Hydra and Open MPI in every rank they start.
@@ -65,6 +74,54 @@ def pytest_configure(config):
     config.addinivalue_line(
         "markers", "parallel(ranks): re-run this test under mpiexec with each listed rank count")
     check_world_size()
+    _start_recording()
+
+
+# --- In a harness child: record what happened to the test, one file per rank ---------------
+
+_record: dict = {"path": None, "reports": []}
+
+
+def _start_recording() -> None:
+    folder = os.environ.pop(RESULT_ENV, None)  # popped: a pytest the test starts must not write
+    if not folder or os.environ.get(CHILD_ENV) != "1":
+        return
+    from mpi4py import MPI
+
+    _record["path"] = Path(folder) / f"rank{MPI.COMM_WORLD.Get_rank()}.json"
+
+
+def _note(report, phase: str) -> None:
+    if _record["path"] is None:
+        return
+    outcome = report.outcome  # passed, failed, skipped
+    reason = ""
+    if hasattr(report, "wasxfail"):
+        outcome, reason = ("xfailed", report.wasxfail) if report.skipped else (outcome, "")
+    elif report.skipped:
+        longrepr = report.longrepr
+        reason = str(longrepr[2] if isinstance(longrepr, tuple) else longrepr)
+        reason = reason.removeprefix("Skipped: ")
+    _record["reports"].append({"phase": phase, "outcome": outcome, "reason": reason})
+
+
+def pytest_runtest_logreport(report):
+    _note(report, report.when)
+
+
+def pytest_collectreport(report):
+    if not report.passed:  # a module skipped or broken at import in the child
+        _note(report, "collect")
+
+
+def pytest_sessionfinish(session, exitstatus):
+    path = _record["path"]
+    if path is None:
+        return
+    data = {"exitstatus": int(exitstatus), "reports": _record["reports"]}
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data))
+    os.replace(tmp, path)  # the parent never reads half a file
 
 
 def check_world_size() -> None:
@@ -128,6 +185,18 @@ def _run_under_mpi(item, n_ranks: int) -> None:
     shared = item.funcargs.get("shared_tmp")
     if shared is not None:
         env[SHARED_TMP_ENV] = str(shared)
+    results = Path(tempfile.mkdtemp(prefix="hpcmpm-mpi-result-"))
+    env[RESULT_ENV] = str(results)
+    try:
+        out = _launch(item, n_ranks, timeout, env)
+        _report_child_outcome(item.nodeid, n_ranks, results, out)
+    finally:
+        shutil.rmtree(results, ignore_errors=True)
+
+
+def _launch(item, n_ranks: int, timeout: float, env: dict) -> str:
+    """Run the test under mpiexec; fail on a timeout or a non-zero exit, else return the
+    child's output."""
     nodeid = item.nodeid
     cmd = [_mpiexec(), "-n", str(n_ranks), sys.executable, "-m", "mpi4py", "-m", "pytest",
            nodeid, "-q", "-x", "--no-header", "-p", "no:cacheprovider",
@@ -155,6 +224,50 @@ def _run_under_mpi(item, n_ranks: int) -> None:
     if proc.returncode != 0:
         pytest.fail(f"{nodeid} failed on {n_ranks} ranks (exit code {proc.returncode}):\n"
                     f"{out[-12000:]}", pytrace=False)
+    return out
+
+
+def _rank_outcome(reports: list[dict]) -> tuple[str, str]:
+    """(outcome, reason) of one rank's test from its setup/call/teardown reports."""
+    for r in reports:
+        if r["outcome"] == "failed":
+            return "failed", f"{r['phase']} failed"
+    for r in reports:
+        if r["outcome"] in ("skipped", "xfailed"):
+            return r["outcome"], r["reason"]
+    if any(r["phase"] == "call" and r["outcome"] == "passed" for r in reports):
+        return "passed", ""
+    return "unknown", "no report of the test itself"
+
+
+def _report_child_outcome(nodeid: str, n_ranks: int, results: Path, out: str) -> None:
+    """Pass, skip (with the child's reason) or xfail as the child's test did on every rank; a
+    child that exited 0 without every rank's result saying passed, skipped or xfailed, or
+    whose ranks disagree, fails."""
+    where = f"{nodeid} on {n_ranks} ranks"
+    outcomes = {}
+    for rank in range(n_ranks):
+        try:
+            data = json.loads((results / f"rank{rank}.json").read_text())
+            outcomes[rank] = _rank_outcome(data["reports"])
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            outcomes[rank] = ("unknown", f"no readable result ({type(err).__name__}: {err})")
+    bad = {r: o for r, o in outcomes.items() if o[0] in ("failed", "unknown")}
+    if bad:
+        pytest.fail(f"{where}: the child exited 0, but its outcome is not a pass or skip on "
+                    f"every rank: {bad}\n{out[-12000:]}", pytrace=False)
+    if len({o[0] for o in outcomes.values()}) > 1:
+        # Ranks that disagree (one skips, another passes) ran different tests: a rank-count
+        # dependence, not a result.
+        pytest.fail(f"{where}: the ranks' outcomes differ: {outcomes}\n{out[-12000:]}",
+                    pytrace=False)
+    outcome, reason = outcomes[0]
+    if outcome == "skipped":
+        # Listed by ``-rs`` at the test's own file and line, as a skip in this process is.
+        raise pytest.skip.Exception(reason or f"skipped on {n_ranks} ranks",
+                                    _use_item_location=True)
+    if outcome == "xfailed":
+        pytest.xfail(reason)
 
 
 def _kill_group(proc: subprocess.Popen) -> None:

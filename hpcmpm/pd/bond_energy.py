@@ -154,8 +154,10 @@ def _bar_term(Fb0, Fb1, Fb2, xl, ep, act, plastic, s):
 @njit(cache=True, error_model="numpy")
 def bond_energy_forces(x, x0, vol, offsets, slot, status, weight, F, active, eiso, e_p,
                        beta, lam, mu, psi_p, commit, n_owned, f):
-    """Return map of each intact bond (psi_p finite, ``commit``), then f_p = sum_q (T_p<X> -
-    T_q<-X>) V_p V_q (module docstring). F, active, eiso of owned + halo points."""
+    """Return map of each intact bond (psi_p finite), then f_p = sum_q (T_p<X> - T_q<-X>)
+    V_p V_q (module docstring) with the returned e_p. ``commit`` only decides whether the new
+    e_p is stored (False: a trial force, the state untouched). F, active, eiso of owned + halo
+    points."""
     dim = x.shape[1]
     stiff = 2.0 * mu + lam
     plastic = psi_p < np.inf

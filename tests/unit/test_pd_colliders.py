@@ -121,11 +121,13 @@ def test_pd_block_sliding_on_a_floor_collider_decelerates_at_mu_g():
     """A block sliding at 1 m/s on a half-space floor (separate, friction mu = 0.2) under
     g = 9.81: the floor's normal impulse per step is the block's weight times dt, so Coulomb
     friction takes mu g dt of the sliding speed per step, a deceleration mu g (the grid nodes'
-    rule). After 0.1 s the mean speed is 1 - 0.2 * 9.81 * 0.1 = 0.804 m/s; 2 % for the
-    block's settling bounce (its normal impulse oscillates about the weight)."""
+    rule). After 0.1 s the mean speed is 1 - 0.2 * 9.81 * 0.1 = 0.804 m/s. The deceleration
+    is asserted, not the speed (2 % of the speed would be 8 % of it): measured 2.9 % above
+    mu g, from the block's settling bounce (its normal impulse oscillates about the weight);
+    5 % bounds that."""
     sim = run_body('shape = "half_space"\npoint = [0.0, 0.2]\nnormal = [0.0, 1.0]\n'
                    'condition = "separate"\nfriction = 0.2', [0.3, 0.2], [0.4, 0.24],
                    [1.0, 0.0], 0.1, gravity=[0.0, -9.81])
     mean_vx = float(np.mean(sim.particles["v"][:, 0]))
-    assert mean_vx == pytest.approx(1.0 - 0.2 * 9.81 * 0.1, rel=0.02)
+    assert (1.0 - mean_vx) / 0.1 == pytest.approx(0.2 * 9.81, rel=0.05)
     assert sim.particles["x"][:, 1].min() > 0.2 - 1e-9

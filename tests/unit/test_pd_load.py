@@ -56,12 +56,24 @@ def test_pd_particles_weigh_their_active_bonds():
     ext.prepare()
     active = ext.bonds.intact_counts()
     assert active.min() < 36 == active.max()     # surface particles have fewer
-    ext.bonds.status[: ext.bonds.offsets[5]] = 0  # the first five particles lose theirs
+    b = ext.bonds
+    owner = np.repeat(np.arange(b.n), b.counts())
+    wv = b.weight * ext.pts.vol[b.slot]
+    initial = np.bincount(owner, wv, minlength=b.n)
+    b.status[: b.offsets[5]] = 0  # the first five particles lose theirs
+    b.status[np.random.default_rng(0).random(b.n_bonds) < 0.3] = 0   # and a third of all
     ext.broken += 1
     ext.write_damage(*sim.group_slices[0])
-    active[:5] = 0
+    active = b.intact_counts()
+    assert np.all(active[:5] == 0)
     want = unit + np.rint(unit * c_b * active).astype(np.int64)
     assert np.array_equal(sim.load_weights(), want)
+    # Damage phi = 1 - sum_intact w V / sum_initial w V (003 eq. 4.8): over the bonds the
+    # particle started with, not over those left (which would make phi 0 everywhere).
+    intact = np.bincount(owner, wv * (b.status != 0), minlength=b.n)
+    start, stop = sim.group_slices[0]
+    assert np.abs(sim.particles["damage"][start:stop] - (1 - intact / initial)).max() < 1e-14
+    assert np.all(sim.particles["damage"][start:start + 5] == 1.0)
 
 
 SPB_SCENE = """

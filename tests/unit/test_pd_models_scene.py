@@ -10,7 +10,7 @@ from hpcmpm.errors import SceneError
 from hpcmpm.materials import make_material
 from hpcmpm.pd.bond_energy import BondEnergy, full_family_sum
 from hpcmpm.pd.viscoelastic_lps import ViscoelasticLPS
-from hpcmpm.runner import make_domain
+from hpcmpm.runner import initial_particles, make_domain
 from hpcmpm.scene import parse_scene
 from hpcmpm.simulation import Simulation
 
@@ -90,3 +90,20 @@ def test_crack_threshold_selects_the_crack_plane_extensions():
     scene = parse_scene(text, path="s.toml")
     sim = Simulation(scene, make_domain(scene))
     assert any(isinstance(e, CrackPlaneIntegralMPM) for e in sim._force_sources)
+
+
+@pytest.mark.parametrize("per_cell", [1, 2])
+def test_crack_planes_cut_within_max_of_cell_and_horizon(per_cell):
+    """003 §5.4 as the issue corrects it: bonds crossing a crack plane within max(dx, delta)
+    break. The engine passes that radius: delta = 3.015 spacings is 3.015 dx with one
+    particle per cell and 1.5075 dx with two, so either way a radius of dx would be wrong."""
+    from hpcmpm.pd.crack_planes import _crack_planes_of
+
+    text = (PLATE.replace("fracture_energy = 10.0", "crack_threshold = 0.05")
+            .replace("particles_per_cell = 2", f"particles_per_cell = {per_cell}"))
+    scene = parse_scene(text, path="s.toml")
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    (ext,) = [e for e in sim._after_g2p if hasattr(e, "compute_forces")]
+    delta = 3.015 * scene.dx / per_cell        # the default horizon, in the scene's units
+    assert _crack_planes_of(ext).radius == pytest.approx(max(scene.dx, delta), rel=1e-12)

@@ -150,3 +150,19 @@ angular_velocity = [0.0, 3.0, 1.0]
     assert np.isfinite(p["x"]).all() and np.isfinite(p["F"]).all()
     drift = np.abs((p["mass"][:, None] * p["v"]).sum(axis=0) - p0).max() / scale
     assert drift < 1e-13
+
+
+def test_bond_damage_weighs_bonds_by_their_partial_volume():
+    """003 eq. 4.8 with partial volumes: damage = 1 - sum_intact w / sum_all w, not the
+    fraction of bonds broken (1/3 here), and a particle without bonds is undamaged."""
+    from hpcmpm.pd.spb import bond_damage
+
+    offsets = np.array([0, 3, 3])                # particle 1 has no bonds yet
+    status = np.array([1, 0, 1], dtype=np.int8)
+    weight = np.array([1.0, 0.5, 0.25])
+    damage = np.full(4, -1.0)
+    active = np.full(4, -1, dtype=np.int64)
+    bond_damage(offsets, status, weight, 2, damage, active, np.array([2, 0]))
+    assert damage[2] == pytest.approx(0.5 / 1.75, rel=1e-15) and active[2] == 2
+    assert damage[0] == 0.0 and active[0] == 0
+    assert damage[1] == -1.0 and damage[3] == -1.0   # only the rows named are written

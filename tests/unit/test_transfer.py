@@ -70,16 +70,18 @@ def angular_momentum(x, v, mass, C, scheme, order):
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("order", [QUADRATIC, CUBIC])
 def test_affine_transfers_keep_angular_momentum_pic_loses_it(dim, order):
+    """Random velocities and affine matrices, not a rigid rotation: an affine field is
+    reproduced exactly by any transfer that is exact for affine fields, so a rigid rotation
+    would keep its angular momentum even under a G2P whose C does not conserve it (e.g. the
+    gradient form sum_i v_i grad w_ip^T, which loses 0.1-0.6 % here in 10 cycles)."""
     rng, x, mass = random_particles(dim, seed=3)
-    omega = np.array([0.3, -0.5, 1.0]) if dim == 3 else np.array([0.0, 0.0, 1.0])
-    centre = np.full(dim, 1.5)
-    spin = np.array([[0, -omega[2], omega[1]], [omega[2], 0, -omega[0]],
-                     [-omega[1], omega[0], 0]])[:dim, :dim]
+    v0 = rng.normal(size=(len(x), dim))
+    C0 = rng.normal(size=(len(x), dim, dim))
     results = {}
     for scheme in (PIC, APIC, MLS):
         xs = x.copy()
-        v = (xs - centre) @ spin.T
-        C = np.tile(spin, (len(x), 1, 1)) if scheme >= APIC else np.zeros((len(x), dim, dim))
+        v = v0.copy()
+        C = C0.copy() if scheme >= APIC else np.zeros((len(x), dim, dim))
         F = np.tile(np.eye(dim), (len(x), 1, 1))
         L0 = angular_momentum(xs, v, mass, C, scheme, order)
         for _ in range(10):

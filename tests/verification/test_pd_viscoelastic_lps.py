@@ -200,15 +200,18 @@ def test_steady_shear_gives_maxwell_stress():
     tau, dt = 1.0, 0.05
     rate = 1e-4 / tau                 # gamma_dot tau = 1e-4: linear regime
     mu_lat = lattice_shear_modulus()
-    # mu_lat differs from mu by the lattice sum of the partial-volume family (~1 %).
-    assert abs(mu_lat / MU - 1.0) < 0.05
+    # mu_lat differs from mu by the lattice sum of the partial-volume family (measured
+    # -3.85 %): against mu itself the stress is 3.86 % low, outside the issue's 2 %, which
+    # is the discrete solid's modulus, not the model's error (docs/studies.md).
+    assert -0.045 < mu_lat / MU - 1.0 < -0.03
     model = ViscoelasticLPS(K, MU, relaxation_time=tau)
     steps = int(round(10 * tau / dt))          # transient exp(-10) = 5e-5
     pts, _ = run_shear(model, rate, dt, steps)
     sigma = virial_shear(pts, stored_pair_forces(pts), interior(pts.x0, N_SHEAR))
-    # Maxwell: sigma -> mu tau gamma_dot (1 - exp(-t/tau)); 2 % (the issue's tolerance)
-    # covers the O(gamma) geometric terms (gamma = 1e-3) and the transient.
-    assert abs(sigma / (mu_lat * tau * rate) - 1.0) < 0.02, sigma / (mu_lat * tau * rate)
+    # Maxwell: sigma -> mu tau gamma_dot (1 - exp(-t/tau)). Measured -3.8e-5, the transient
+    # exp(-10) = 4.5e-5; the bound 2e-3 (the issue asks 2 %) leaves room for the O(gamma)
+    # geometric terms (gamma = 1e-3) and no more.
+    assert abs(sigma / (mu_lat * tau * rate) - 1.0) < 2e-3, sigma / (mu_lat * tau * rate)
 
 
 def test_memory_none_is_a_viscosity_proportional_to_dt():

@@ -15,6 +15,8 @@ to a small part of the compression that MPM's boundary layers (about 20 % of it 
 cell above the floor, with or without the average) leave alone in the interior. An average
 of J itself instead of its change (tried: docs/studies.md) kept |v| at 7e-4 here."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -56,8 +58,9 @@ default = "slip"
 """
 
 
-@pytest.mark.parametrize("averaging", ["increment", "none"])
-def test_column_settles_to_the_hydrostatic_state(averaging):
+@functools.lru_cache(maxsize=None)
+def settled(averaging: str):
+    """(Y of each particle, final J, max |v|, steps), rows sorted by id."""
     scene = parse_scene(TEXT, "column.toml", [f'simulation.volume_averaging="{averaging}"'])
     # The reference coordinate of each particle: its place in the lattice before the run.
     probe = Simulation(scene, make_domain(scene))
@@ -65,13 +68,27 @@ def test_column_settles_to_the_hydrostatic_state(averaging):
     reference = dict(zip(probe.particles["id"].tolist(), probe.particles["x"][:, 1].tolist()))
     sim = simulate(scene)
     p = sim.particles
-    assert sim.step_index == 300
-    Y = np.array([reference[i] for i in p["id"].tolist()])
+    order = np.argsort(p["id"])
+    Y = np.array([reference[i] for i in p["id"][order].tolist()])
+    return Y, p["J"][order].copy(), float(np.abs(p["v"]).max()), sim.step_index
+
+
+@pytest.mark.parametrize("averaging", ["increment", "none"])
+def test_column_settles_to_the_hydrostatic_state(averaging):
+    Y, J, vmax, steps = settled(averaging)
+    assert steps == 300
     exact = 1.0 / (1.0 + RHO * G * (H - Y) / E)
     scale = RHO * G * H / E
-    assert np.abs(p["v"]).max() < 1e-5
+    assert vmax < 1e-5
     interior = (Y > 0.1) & (Y < 0.4)
     assert interior.sum() > 200
-    assert np.abs(p["J"][interior] - exact[interior]).max() < 0.02 * scale
+    assert np.abs(J[interior] - exact[interior]).max() < 0.02 * scale
     # The column did compress: the check is not vacuous.
-    assert (1.0 - p["J"][interior]).max() > 0.5 * scale
+    assert (1.0 - J[interior]).max() > 0.5 * scale
+
+
+def test_the_average_acts():
+    """"increment" is not "none" renamed: the two settled columns' J differ (measured up to
+    5.9e-3, 12 % of the compression, mostly in the boundary layers)."""
+    scale = RHO * G * H / E
+    assert np.abs(settled("increment")[1] - settled("none")[1]).max() > 0.05 * scale
