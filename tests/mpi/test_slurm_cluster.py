@@ -49,7 +49,8 @@ def _missing() -> str | None:
     return None
 
 
-pytestmark = pytest.mark.skipif(_missing() is not None, reason=_missing() or "")
+pytestmark = [pytest.mark.needs_tool,
+              pytest.mark.skipif(_missing() is not None, reason=_missing() or "")]
 
 
 def _exe(name: str) -> str:

@@ -52,6 +52,7 @@ def load_finite(path: Path) -> dict:
     return doc
 
 
+@pytest.mark.needs_tool
 @pytest.mark.skipif(not HAS_TAICHI, reason=NO_TAICHI)
 def test_peer_smoke(tmp_path):
     # What one launch does, all scenes in this one process (the separate launches and their
@@ -76,6 +77,7 @@ def test_ceiling_smoke(tmp_path):
         assert set(r["hpcmpm_phases_ms_per_step"]) >= {"sort", "stress", "p2g", "grid", "g2p"}
 
 
+@pytest.mark.needs_tool
 @pytest.mark.skipif(shutil.which("mpiexec", path=str(Path(sys.executable).parent)
                                  + os.pathsep + os.environ.get("PATH", "")) is None,
                     reason="mpiexec not found")

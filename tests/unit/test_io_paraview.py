@@ -24,8 +24,8 @@ from test_io_frames import global_particles, write_frames
 
 PVPYTHON = shutil.which("pvpython")
 XVFB = shutil.which("Xvfb")
-pytestmark = pytest.mark.skipif(
-    PVPYTHON is None, reason="pvpython not installed (apt-get install paraview python3-paraview)")
+pytestmark = [pytest.mark.needs_tool, pytest.mark.skipif(
+    PVPYTHON is None, reason="pvpython not installed (apt-get install paraview python3-paraview)")]
 
 PROBE = """
 import json, sys

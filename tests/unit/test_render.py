@@ -184,6 +184,7 @@ def test_3d_picture_has_its_size_and_the_particles_where_they_are(tmp_path):
     assert abs(pr.min() - rows[front].min()) <= 3 and abs(pr.max() - rows[front].max()) <= 3
 
 
+@pytest.mark.needs_tool
 @pytest.mark.parametrize("fmt", ["gif", "mp4"])
 def test_movie_has_every_rendered_frame(tmp_path, fmt):
     if fmt == "mp4" and find_ffmpeg() is None:

@@ -45,6 +45,7 @@ def numbers(obj):
             yield from numbers(v)
 
 
+@pytest.mark.needs_tool
 def test_study_error_smoke(tmp_path):
     png = tmp_path / "study_error.png"
     result = run_script("study_error.py", "--smoke", "--out-dir", str(tmp_path), "--png",

@@ -122,6 +122,19 @@ def slope(errors) -> float:
     return float(np.polyfit(np.log(RATIOS), np.log(errors), 1)[0])
 
 
+# Measured stress error at dt/Wi = 0.01, the largest over dim in {2, 3} and W in {0.5, 1} of
+# each flow and plasticity (rounded up to two digits); each run must stay within 1.5x of it.
+# The issue's 1 % alone lets a first-order-consistent error through: ob_explicit with
+# R = (1 - r) b^n instead of b^n (a mutant) measured 1.02 %-1.61 % in start-up shear, against
+# 0.24 % here (its relaxation is unchanged and its extension, 0.43 % against 0.31 %, stays
+# within the bound).
+MEASURED_AT_0_01 = {
+    "startup_shear": {"ob_spd": 2.1e-3, "ob_explicit": 2.5e-3, "fe": 3.4e-3, "fe_bdf2": 7.4e-5},
+    "relaxation": {"ob_spd": 1.9e-3, "ob_explicit": 1.9e-3, "fe": 1.8e-3, "fe_bdf2": 8.8e-5},
+    "extension": {"ob_spd": 3.3e-3, "ob_explicit": 3.2e-3, "fe": 3.2e-3, "fe_bdf2": 3.1e-3},
+}
+
+
 @pytest.mark.parametrize("dim", (2, 3))
 @pytest.mark.parametrize("plasticity", PLASTICITIES)
 @pytest.mark.parametrize("name", ("startup_shear", "relaxation", "extension"))
@@ -131,6 +144,10 @@ def test_oldroyd_b_closed_forms(name, plasticity, dim):
         stress, conformation = errors[:, 0], errors[:, 1]
         # Issue 9's bar: 1 % at dt/Wi = 0.01 (measured 0.07 %-0.33 %, see the report).
         assert stress[RATIOS.index(0.01)] <= 0.01, (name, plasticity, dim, W, stress)
+        # And this scheme's own measured error (fe_bdf2 second order except in the extension
+        # flow's J), with a 1.5x margin: MEASURED_AT_0_01.
+        assert stress[RATIOS.index(0.01)] <= 1.5 * MEASURED_AT_0_01[name][plasticity], \
+            (name, plasticity, dim, W, stress)
         second_order = plasticity == "fe_bdf2"
         # The schemes' orders, 1 (2 for BDF2), with the issue's margin: the four ratios sit in
         # the asymptotic range (measured slopes within 0.02 of 1 and 0.06 of 2).
@@ -201,6 +218,48 @@ def test_von_mises_shear_plateau(dim):
     # 0.5 % (issue 9); the plateau differs from the small-strain value by O(sigma_Y^2) ~ 1e-4
     # (measured 3e-5).
     assert tau[-1] == pytest.approx(MU * sigma_y / math.sqrt(2.0), rel=5e-3)
+    assert tau[-1] == pytest.approx(tau[-200], rel=1e-6)  # a plateau, not a transient
+
+
+@pytest.mark.parametrize("dim", (2, 3))
+def test_von_mises_shear_plateau_after_compression(dim):
+    """The radial return acts on the isochoric b_bar = b / det(b)^(1/d) (000 §4.2.6, §4.3;
+    Simo 1988), so it must hold at any J, not only at J = 1 where b = b_bar (the previous
+    test). Compress isotropically (L = -I for 1000 steps of 1e-4: J = (1 - dt)^(d 1000),
+    0.82 in 2D, 0.74 in 3D), then shear at rate 1 to a strain of 0.2.
+
+    What the code implies. The compression keeps b_bar = I (b_hat = (1 - dt)^2 b), and the
+    trial b_hat and the return are unchanged when b is scaled, so b / J^(2/d) follows the
+    J = 1 run exactly (measured 4e-15 in 2D, 2e-14 in 3D). The return sets |dev b_bar| =
+    sigma_Y with tr b_bar kept, and the stored b is rescaled to det b = J^2, which changes
+    |dev(b / J^(2/d))| by a factor det(b_ret)^(-1/d) = 1 - O(sigma_Y dt gdot) (measured
+    -7e-7 in 2D, -5e-7 in 3D; tolerance 1e-5). With det b = J^2, b_E = b and eq. 5.9 gives
+    sigma_xy = mu b_xy / J = mu J^(2/d - 1) (b / J^(2/d))_xy, so the plateau is
+    mu sigma_Y J^(2/d - 1) / sqrt2: independent of J in 2D, but J^(-1/3) = 1.105 times
+    mu sigma_Y / sqrt2 in 3D. Measured 1 - 2.6e-5 (2D) and 1 - 3.4e-5 (3D) of it, the
+    O(sigma_Y^2) normal part of dev b_bar (as in the previous test); tolerance 1e-4.
+    A return that keeps tr(b_hat)/d instead of tr(b_bar)/d (a mutant) gave |dev| 1.22 sigma_Y
+    and the plateau 1.22 times this in both dimensions."""
+    sigma_y, dt, squeeze, shear_steps = 0.01, 1e-4, 1000, 2000
+    mat = make_material(Spec("von_mises", {"mu": MU, "lambda": LAM, "yield_strain": sigma_y}),
+                        dim)
+    shear = np.zeros((dim, dim))
+    shear[0, 1] = 1.0
+
+    def L(t):  # step n uses L(n dt): compression for steps 1 ... squeeze
+        return -np.eye(dim) if t < (squeeze + 0.5) * dt else shear
+
+    res = drive(mat, L, dt, squeeze + shear_steps)
+    J = res.J[-1, 0]
+    assert J == pytest.approx((1.0 - dt) ** (dim * squeeze), rel=1e-12)
+    b_bar = res.fields["b"][0] / J ** (2.0 / dim)
+    dev = b_bar - np.trace(b_bar) / dim * np.eye(dim)
+    assert np.linalg.norm(dev) == pytest.approx(sigma_y, rel=1e-5)
+    at_rest_volume = drive(mat, lambda t: shear, dt, shear_steps).fields["b"][0]
+    np.testing.assert_allclose(b_bar, at_rest_volume, rtol=0, atol=1e-12)
+    tau = res.sigma()[:, 0, 0, 1]
+    plateau = MU * sigma_y * J ** (2.0 / dim - 1.0) / math.sqrt(2.0)
+    assert tau[-1] == pytest.approx(plateau, rel=1e-4)
     assert tau[-1] == pytest.approx(tau[-200], rel=1e-6)  # a plateau, not a transient
 
 
