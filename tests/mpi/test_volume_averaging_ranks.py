@@ -11,6 +11,7 @@ from hpcmpm.parallel import Communicator
 from hpcmpm.runner import initial_particles, make_domain
 from hpcmpm.scene import parse_scene
 from hpcmpm.simulation import Simulation
+from volume_reference import reference_average
 from mpi_helpers import gather_by_id
 
 MATERIAL = """
@@ -85,44 +86,6 @@ jitter = 0.4
 """
 
 
-def weights_1d(xi: np.ndarray, order: int):
-    """(base, w (n, order + 1)): the B-spline weights, written independently of the kernels."""
-    if order == 2:
-        base = np.floor(xi - 0.5).astype(np.int64)
-        r = xi[:, None] - (base[:, None] + np.arange(3))
-        a = np.abs(r)
-        w = np.where(a < 0.5, 0.75 - a * a, 0.5 * (1.5 - a) ** 2)
-    else:
-        base = np.floor(xi).astype(np.int64) - 1
-        a = np.abs(xi[:, None] - (base[:, None] + np.arange(4)))
-        w = np.where(a < 1.0, 0.5 * a ** 3 - a * a + 2.0 / 3.0, (2.0 - a) ** 3 / 6.0)
-    return base, w
-
-
-def reference_average(x, vol0, J_old, J_new, dx, order, dim, periodic_cells):
-    """J_p^n sum_i w_ip r_i, r_i = sum_q w_iq V0_q J_q^{n+1} / sum_q w_iq V0_q J_q^n, over all
-    particles at once; nodes along a periodic axis wrap modulo its cell count."""
-    bases, ws = zip(*(weights_1d(x[:, a] / dx, order) for a in range(dim)))
-    s = order + 1
-    nodes, w = [], []
-    for corner in np.ndindex(*(s,) * dim):
-        idx = [bases[a] + corner[a] for a in range(dim)]
-        if periodic_cells:
-            idx[0] = idx[0] % periodic_cells
-        nodes.append(np.stack(idx, axis=1))
-        w.append(np.prod([ws[a][:, corner[a]] for a in range(dim)], axis=0))
-    keys = np.concatenate(nodes)
-    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
-    inverse = inverse.reshape(len(nodes), len(x))
-    old = np.zeros(len(unique))
-    new = np.zeros(len(unique))
-    for k in range(len(nodes)):
-        np.add.at(old, inverse[k], w[k] * vol0 * J_old)
-        np.add.at(new, inverse[k], w[k] * vol0 * J_new)
-    r = new / old
-    return J_old * sum(w[k] * r[inverse[k]] for k in range(len(nodes)))
-
-
 def averaged(sim, J_new) -> dict:
     """One average as the step runs it: x^n, J^n kept, J^{n+1} = J_new(particles) set as the
     state update would, then the average; every rank's particles by id."""
@@ -154,7 +117,7 @@ def check(dim: int, kernel: str, periodic: bool) -> None:
     cells = int(round(1.0 / sim.dx)) if periodic else 0
     J_new = change(before)[paste]
     expected = reference_average(before["x"][paste], before["vol0"][paste],
-                                 before["J"][paste], J_new, sim.dx, order, dim, cells)
+                                 before["J"][paste], J_new, sim.dx, order, cells)
     # Sums of <= 64 positive terms per node and per particle, in another order: round-off.
     np.testing.assert_allclose(after["J"][paste], expected, rtol=1e-13, atol=0)
     # Not the identity: the average moves J by a sizeable fraction of the 0.2 change.
@@ -164,7 +127,7 @@ def check(dim: int, kernel: str, periodic: bool) -> None:
     assert np.sum(V0 * after["J"][paste]) == pytest.approx(np.sum(V0 * J_new), rel=1e-13)
     # Weighed by mass instead, the dense water would pull the shared nodes: not what ran.
     by_mass = reference_average(before["x"][paste], before["mass"][paste], before["J"][paste],
-                                J_new, sim.dx, order, dim, cells)
+                                J_new, sim.dx, order, cells)
     assert np.abs(by_mass - expected).max() > 1e-3
     # A uniform ratio is kept (every r_i is 1.25), and so is a state at rest.
     start = gather_by_id(sim.domain, p)["J"]
