@@ -105,6 +105,13 @@ class Runner:
         """Simulated time of frame k: 0, every, 2 every, ..., and the end time."""
         return frame_time(k, self.frame_every, self.options.end_time)
 
+    def next_frame_time(self, t: float) -> float:
+        """The first output time after t: the next multiple of ``every``, or the end time.
+        Counted from t, not from the frames written: a run that ended between two multiples
+        wrote its end-time frame too, and its restart must still write the next multiple
+        (the relative 1e-12 puts a t that landed on a multiple, up to round-off, past it)."""
+        return self.frame_time(math.floor(t / self.frame_every * (1.0 + 1e-12)) + 1)
+
     def choose_dt(self) -> float:
         sim = self.sim
         stable = sim.stable_dt()  # also the instability guard, agreed by all ranks
@@ -142,7 +149,7 @@ class Runner:
                         f"{signal.Signals(raised[0]).name} received: checkpoint written at "
                         f"step {sim.step_index}, t={sim.time:.6g} in {opts.out_dir}; continue "
                         f"with `hpcmpm restart {self.latest_checkpoint_path}`")
-                target = self.frame_time(self.frame_index)
+                target = self.next_frame_time(sim.time)
                 clipped = sim.time + dt >= target * (1 - 1e-12)
                 if clipped and abs(target - sim.time - dt) > 1e-9 * dt:
                     # A gap that differs from dt by round-off only keeps dt's bits: a run

@@ -1,6 +1,7 @@
 """Checkpoint/restart through the CLI: same rank count bit for bit, another rank count within
 1e-10, SIGTERM writes a usable checkpoint and exits with the documented code."""
 
+import json
 import signal
 import subprocess
 import time
@@ -50,7 +51,8 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path, uninterrupted, first
     assert attrs["time"] == ref_attrs["time"]
     assert np.array_equal(got["id"], ref["id"])
     frames = sorted(tmp_path.glob("frame_*.h5"))
-    assert len(frames) == 5  # t = 0, 50, 100, 150, 200 steps: the series continues
+    # t = 0, 50, 100, 150, 200 steps: the series continues, no frame written twice.
+    assert [read_frame(f)[1]["time"] for f in frames] == [k * 50 * DT for k in range(5)]
     for name in ("x", "v", "F", "mass"):
         if first == second:
             assert np.array_equal(got[name], ref[name]), f"{name} not bitwise equal"
@@ -58,6 +60,33 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path, uninterrupted, first
             # Another rank count sums ghost contributions in another order: round-off.
             err = np.abs(got[name] - ref[name]).max() / np.abs(ref[name]).max()
             assert err < 1e-10, f"{name}: {err:.2e}"
+
+
+def test_restarts_between_frame_times_keep_the_series_and_the_chain(tmp_path):
+    """A run that ends between two output times (0.5 with output.every = 0.15) writes an
+    end-time frame; its restart still writes the next multiple (0.6), and so on through a
+    second restart. Each step lands where the uninterrupted run's does, so the end state is
+    bit for bit that run's, and the last frame names the scene and both checkpoints."""
+    every = ["--set", f"simulation.dt={DT}", "--set", "output.every=0.15"]
+    full = tmp_path / "full"
+    hpcmpm(1, "run", "inputs/disks_2d.toml", "--out", str(full), "--quiet", "--end-time", "1.0",
+           *every)
+    out = tmp_path / "pieces"
+    hpcmpm(1, "run", "inputs/disks_2d.toml", "--out", str(out), "--quiet", "--end-time", "0.5",
+           *every)
+    first = latest_checkpoint(out)
+    hpcmpm(1, "restart", str(first), "--end-time", "0.8", "--quiet")
+    second = latest_checkpoint(out)
+    assert (first.name, second.name) == ("ckpt_000000100.h5", "ckpt_000000160.h5")
+    hpcmpm(1, "restart", str(second), "--end-time", "1.0", "--quiet")
+    times = [read_frame(f)[1]["time"] for f in sorted(out.glob("frame_*.h5"))]
+    assert times == [0.0, 0.15, 0.3, 0.45, 0.5, 0.6, 0.75, 0.8, 0.9, 1.0]
+    (got, attrs), (ref, ref_attrs) = final_frame(out), final_frame(full)
+    assert attrs["step"] == ref_attrs["step"] == 200
+    for name in ("x", "v", "F"):
+        assert np.array_equal(got[name], ref[name]), name
+    chain = json.loads(attrs["restart_chain"])
+    assert [Path(c).name for c in chain] == ["disks_2d.toml", first.name, second.name]
 
 
 @pytest.mark.parametrize("ranks,sig", [(1, signal.SIGTERM), (2, signal.SIGUSR1)])

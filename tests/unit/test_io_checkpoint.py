@@ -212,3 +212,28 @@ def test_fluid_checkpoint_holding_F_restarts_with_J(tmp_path, monkeypatch):
     # det of sqrt(J) I in floating point: equal to J within a few ulps.
     assert np.allclose(sim.particles["J"][order], J[np.argsort(fields["id"])], rtol=1e-14,
                        atol=0)
+
+
+def test_checksum_covers_every_chunk_and_combines_across_a_split():
+    """`hpcmpm.io.checksum` sums its words in passes of ``_CHUNK`` (2**20); the checkpoints
+    above are far smaller than one pass, so a pass that skipped the words after the first
+    would go unnoticed there. A (600000, 3) float64 array is 1.8 M words (two passes): a
+    one-ulp change of its LAST element must change the checksum, and the array split at row
+    250000 into two slices, each checksummed from its first row and combined the way the
+    writer combines the ranks' slices (write_checkpoint: partial_checksum(rows, offset),
+    then combine), must give the whole array's checksum. The second slice (1.05 M words)
+    spans two passes itself. Exact equalities: the sum is integer arithmetic mod 2**64."""
+    from hpcmpm.io import checksum as cks
+
+    rows, split = 600_000, 250_000
+    assert rows * 3 > cks._CHUNK and (rows - split) * 3 > cks._CHUNK
+    a = np.random.default_rng(7).standard_normal((rows, 3))
+    whole = cks.checksum(a)
+    changed = a.copy()
+    changed[-1, -1] = np.nextafter(changed[-1, -1], np.inf)
+    assert cks.checksum(changed) != whole
+    parts = [cks.partial_checksum(a[:split], 0), cks.partial_checksum(a[split:], split)]
+    assert cks.combine(parts) == whole
+    # The split is not an identity by accident: the second slice counted from row 0 is
+    # another sum (the element index enters every term).
+    assert cks.combine([parts[0], cks.partial_checksum(a[split:], 0)]) != whole
