@@ -267,6 +267,51 @@ def test_separating_moving_collider_projects_the_relative_velocity():
     assert np.all(v[:, ~inside] == [3.0, -1.0])
 
 
+
+def test_constrain_records_the_normal_where_the_collider_pushes_in_relative_terms():
+    # The semi-implicit mask of the same rising floor (y <= 0.55 at 1 m/s, separate): it is
+    # placed at t + dt, so at y <= 0.65, and nodes there move up at 0.5 m/s, slower than the
+    # floor. Relative normal velocity 0.5 - 1 = -0.5 < 0: the floor pushes them, and
+    # `constrain` fixes their normal (count 1, basis row (0, 1, 0)). Judged by the absolute
+    # velocity (+0.5, moving away) the mask would be empty.
+    c = Collider(collider_spec("half_space", {"point": [0.0, 0.55], "normal": [0.0, 1.0]},
+                               "separate", velocity=[0.0, 1.0]), 2)
+    v = np.zeros((11, 11, 2))
+    v[..., 1] = 0.5
+    basis = np.zeros((11, 11, 1, 3, 3))
+    count = np.zeros((11, 11, 1), np.int64)
+    c.constrain(v, np.zeros(2, np.int64), 0.1, np.zeros(2), 0.0, 0.1, np.ones((11, 11)),
+                basis, count)
+    inside = np.arange(11) * 0.1 < 0.65  # y = 0 .. 0.6 (the floor at 0.65 at t + dt)
+    assert np.all(count[:, inside] == 1) and np.all(count[:, ~inside] == 0)
+    np.testing.assert_array_equal(basis[:, inside, 0, 0],
+                                  np.broadcast_to([0.0, 1.0, 0.0], basis[:, inside, 0, 0].shape))
+    assert np.all(v[..., 1] == 0.5)  # recording leaves the trial velocity alone
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rotated_sticky_box_stops_every_node_inside_it(dim):
+    # A long thin box (half extents 0.5 x 0.1) turned 1.2 rad reaches well outside its
+    # unrotated bounding box (2D: [0.5, 1.5] x [0.9, 1.1]): the nodes searched must cover the
+    # rotated box. Measured: 19 (2D) / 38 (3D) nodes have phi <= 0; a search box that
+    # ignores the rotation misses 8 / 16 of them.
+    if dim == 2:
+        spec = collider_spec("box", {"center": [1.0, 1.0], "half_extents": [0.5, 0.1],
+                                     "rotation": 1.2})
+    else:
+        spec = collider_spec("box", {"center": [1.0, 1.0, 1.0], "half_extents": [0.1, 0.5, 0.1],
+                                     "rotation": [1.2, 0, 0]})
+    c = Collider(spec, dim)
+    shape = (21,) * dim
+    v = np.ones(shape + (dim,))
+    c.apply(v, np.zeros(dim, np.int64), 0.1, np.zeros(dim), 0.0, 0.0, np.ones(shape))
+    x = np.stack(np.indices(shape), -1).reshape(-1, dim) * 0.1
+    phi, _ = c.level_set(x, 0.0)
+    inside = (phi <= 0.0).reshape(shape)
+    assert inside.sum() == 19 * (dim - 1)
+    assert np.all(v[inside] == 0.0)
+    assert np.all(v[~inside] == 1.0)
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_rotating_box_carries_body_points(dim):
     t = 0.8

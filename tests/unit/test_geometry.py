@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hpcmpm.errors import SceneError
-from hpcmpm.geometry import sample_body, sample_scene
+from hpcmpm.geometry import count_scene, sample_body, sample_scene, sample_share
 from hpcmpm.scene import parse_scene
 
 CUBE_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=float)
@@ -174,6 +174,26 @@ def test_jitter_is_reproducible_with_the_seed_and_bounded():
     offset = np.abs(a - x0)
     assert offset.max() <= 0.25 * 0.025 + 1e-15 and offset.max() > 0.2 * 0.025
 
+
+
+def test_jitter_of_a_share_does_not_depend_on_where_the_share_starts():
+    """A rank's share [a, b) draws its jitter from the body's stream advanced past the
+    a * dim coordinates before it, so it equals ids a .. b-1 of the whole body bitwise
+    (a share starting elsewhere, e.g. a stream advanced by a only, moved points by up to
+    0.023, about the whole jitter range 0.5 * 0.05)."""
+    scene = parse_scene(scene_text(2, ['material = "m"\nshape = "sphere"\ncenter = [0.5, 0.5]'
+                                       '\nradius = 0.3\njitter = 0.5\nseed = 7'], dx=0.1),
+                        "t.toml")
+    counts = count_scene(scene)
+    n = counts.total
+    assert n == 112  # spacing 0.05: a 0.3-radius disk, several layers, partial ones
+    full = sample_share(scene, counts, 0, n)
+    (x0, _), _ = one_body(2, 'shape = "sphere"\ncenter = [0.5, 0.5]\nradius = 0.3', dx=0.1)
+    assert np.abs(full["x"] - x0).max() > 0.2 * 0.05 * 0.5  # the jitter is on
+    for a, b in [(1, 5), (17, n), (n // 3, 2 * n // 3)]:
+        part = sample_share(scene, counts, a, b)
+        np.testing.assert_array_equal(part["id"], np.arange(a, b))
+        np.testing.assert_array_equal(part["x"], full["x"][a:b])
 
 def test_sample_scene_fields_ids_groups_and_velocities():
     materials = ['name = "soft"\ntype = "linear_elastic"\ndensity = 2.0\nE = 1.0\nnu = 0.3\n',

@@ -351,14 +351,30 @@ def test_wave_speed(name, dim):
     assert material(name, dim).wave_speed() == pytest.approx(expected, rel=1e-15)
 
 
-def test_weakly_compressible_matches_mpm88_and_forgets_shear():
-    mat = material("weakly_compressible", 2)
-    F = np.array([[[1.1, 0.3], [0.0, 0.8]]])
+WC_SHEARED_F = {
+    2: [[1.1, 0.3], [0.0, 0.8]],
+    3: [[1.1, 0.3, 0.0], [0.0, 0.8, 0.1], [0.05, 0.0, 1.05]],
+}
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_weakly_compressible_matches_mpm88_and_forgets_shear(dim):
+    """mpm88's fluid: the return map resets a sheared F to J^(1/d) I, keeping det F = J, and
+    the stress is tau = E (J - 1) I."""
+    mat = material("weakly_compressible", dim)
+    F = np.array([WC_SHEARED_F[dim]], dtype=np.float64)
     f = fields_for(F.copy())
     project_then_stress(mat, f)
     J = np.linalg.det(F[0])
-    assert np.allclose(f["tau"][0], E * (J - 1) * np.eye(2), rtol=1e-15, atol=0)
-    assert np.allclose(f["F"][0], math.sqrt(J) * np.eye(2), rtol=1e-15, atol=0)
+    # Measured: det F after the reset matches J to 2.2e-16 relative and F to 1.1e-16 (a
+    # cube root cubed and a 3x3 det: a few ulps); 1e-14 is headroom. tau is off by 3.0e-15
+    # relative in 3D, since J - 1 = -0.07 amplifies the ulps of det F: 1e-13. J^(1/2) I in
+    # 3D is off by 3.8 % in det F and 47 % in tau_00.
+    # 2D keeps its bound of 1e-15 (a 2x2 det and a square root: measured exact).
+    rtol_F, rtol_tau = (1e-15, 1e-15) if dim == 2 else (1e-14, 1e-13)
+    assert abs(np.linalg.det(f["F"][0]) / J - 1) <= 1e-14
+    assert np.allclose(f["F"][0], J ** (1.0 / dim) * np.eye(dim), rtol=rtol_F, atol=0)
+    assert np.allclose(f["tau"][0], E * (J - 1) * np.eye(dim), rtol=rtol_tau, atol=0)
 
 
 def test_update_on_particle_set_slices():
