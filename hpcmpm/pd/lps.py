@@ -86,6 +86,13 @@ def lps_dilatation(x, x0, vol, offsets, slot, status, weight, m, s0, n_owned, th
     return broken
 
 
+@njit(cache=True, inline="always")
+def shear_coefficient(mu, dim):
+    """alpha m = 15 mu (3D), 8 mu (2D) (Silling 2007: alpha = 15 mu/m; its 2D counterpart):
+    the one definition every LPS kernel, clamped and viscoelastic ones included, uses."""
+    return (15.0 if dim == 3 else 8.0) * mu
+
+
 @njit(cache=True, error_model="numpy")
 def _scalar_force(theta, m, e, xl, kappa, alpha_m, dim):
     """t of one end (without w): (d kappa theta/m)|X| + (alpha_m/m) (e - theta |X|/d)."""
@@ -111,7 +118,7 @@ def lps_bond_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, 
                     out):
     """The per-half-bond terms of `lps_forces`, out (nb, d) (verification)."""
     dim = x.shape[1]
-    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    alpha_m = shear_coefficient(mu, dim)
     for p in range(n_owned):
         for b in range(offsets[p], offsets[p + 1]):
             for i in range(dim):
@@ -130,7 +137,7 @@ def lps_bond_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, 
 def lps_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, mu, n_owned, f):
     """f_p = sum_q w (t_p + t_q) V_p V_q Y/|Y| over intact bonds; m, theta of owned + halo."""
     dim = x.shape[1]
-    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    alpha_m = shear_coefficient(mu, dim)
     for p in range(n_owned):
         f0 = 0.0
         f1 = 0.0
@@ -154,7 +161,7 @@ def lps_energy_density(x, x0, vol, offsets, slot, status, weight, m, theta, kapp
                        n_owned, out):
     """W_p = kappa theta^2/2 + (alpha/2) sum_q w (e^d)^2 V_q."""
     dim = x.shape[1]
-    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    alpha_m = shear_coefficient(mu, dim)
     for p in range(n_owned):
         s = 0.0
         th = theta[p]
@@ -236,7 +243,7 @@ def lps_clamp_terms(x, x0, vol, offsets, slot, status, m, theta, theta_image, ka
     w' (t_p + t_q') V_p V_q Y'/|Y'| (t_q' with theta_image[q, f] and m_q) to f (n_owned, d),
     or with ``energy`` their (alpha/2) w' (e^d)^2 V_q to f[:, 0] (`lps_energy_density`)."""
     dim = x.shape[1]
-    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    alpha_m = shear_coefficient(mu, dim)
     GX, GY, GW, GQ = ghost_scratch(offsets, faces)
     for p in range(n_owned):
         if m[p] <= 0.0:

@@ -52,6 +52,7 @@ import numpy as np
 from numba import njit
 
 from .geometry import bond_vectors, norm3
+from .lps import shear_coefficient
 
 MEMORIES = ("maxwell", "none")
 STATE_FIELDS = ("ve_len", "ve_iso", "ve_dev")
@@ -121,7 +122,7 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
     f_p = sum_q (ve_iso + ve_dev) V_p V_q Y/|Y|. ``decay`` = exp(-dt/tau), ``gain`` =
     (1 - decay)/(dt/tau); ``commit`` False leaves the state untouched (verification)."""
     dim = x.shape[1]
-    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    alpha_m = shear_coefficient(mu, dim)
     for p in range(n_owned):
         f0 = 0.0
         f1 = 0.0
@@ -162,7 +163,7 @@ def modulus_state(x, vol, bonds, p: int, kappa: float, mu: float) -> np.ndarray:
     reference: m with |Y|, eq. 5.17), as blocks M[i, j] (k, k, d, d) over p's intact bonds
     i, j in segment order: dT_p<Y_i> = sum_j M[i, j] dY_j V_j (verification; plain numpy)."""
     dim = x.shape[1]
-    alpha_m = (15.0 if dim == 3 else 8.0) * mu
+    alpha_m = shear_coefficient(mu, dim)
     sl = slice(bonds.offsets[p], bonds.offsets[p + 1])
     keep = bonds.status[sl] != 0
     q = bonds.slot[sl][keep]
