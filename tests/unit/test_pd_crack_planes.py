@@ -126,3 +126,34 @@ def test_inactive_fraction_and_plastic_stretch_raise_the_failure_stretch():
     assert np.array_equal(pts.bonds.status == 0, (status0 == 0) | want)
     assert np.all(pts.bonds.status[pts.bonds.offsets[0]:pts.bonds.offsets[1]] == 1)
     assert (pbar[status0 == 1] > 0.1).sum() > 0 and want.sum() > 0
+
+
+def test_plastic_stretch_is_subtracted_before_dividing_by_one_plus_p_inactive():
+    """l = (s - e_p) / (1 + p_bar), not s / (1 + p_bar) - e_p: the two differ by e_p p_bar, so
+    e_p sits on every bond, including those of the cell with p_bar ~ 0.3."""
+    pts = plate()
+    owner, q = half_bonds(pts)
+    cell = np.floor(pts.x / CELL).astype(int)
+    inside = np.flatnonzero(np.all(cell == [5, 5], axis=1))
+    mine = np.flatnonzero(np.isin(owner, inside))
+    pts.bonds.status[mine[::3]] = 0
+    pts.bonds.status[mirror_index(pts)[mine[::3]]] = 0
+    cp = planes()
+    p_cell = cp.inactive_fraction(pts, SerialComm())
+    s = 2.276 * cp.threshold
+    pts.x[:] = pts.x0 * (1 + s)
+    status0 = pts.bonds.status.copy()
+    plastic = np.full(pts.bonds.n_bonds, cp.threshold)
+    cp.radius = float("nan")               # no cut: failure only
+    cp.apply(pts, SerialComm(), plastic)
+    pbar = 0.5 * (p_cell[owner] + p_cell[q])
+    stretch = np.linalg.norm(pts.x[q] - pts.x[owner], axis=1) / \
+        np.linalg.norm(pts.x0[q] - pts.x0[owner], axis=1) - 1
+    want = (status0 == 1) & ((stretch - plastic) / (1 + pbar) > cp.threshold)
+    wrong = (status0 == 1) & (stretch / (1 + pbar) - plastic > cp.threshold)
+    assert np.array_equal(pts.bonds.status == 0, (status0 == 0) | want)
+    # s = 2.276 l_thr breaks a bond iff p_bar < 0.276 (the wrong form: iff p_bar < 0.138).
+    # Measured: 12282 of 12284 intact half-bonds break, 2 stay; the forms disagree on 178
+    # (p_bar 0.184-0.208), which the exact comparison above must get right.
+    assert want.sum() > 0 and ((status0 == 1) & ~want).sum() > 0
+    assert (want != wrong).sum() > 0

@@ -162,3 +162,21 @@ def test_flags_cells_with_a_flagged_corner():
     # last particle is already PD.
     assert sorted(out[:count].tolist()) == [0, 1, 2]
     assert margin == 0.0
+
+
+def test_flags_by_the_cell_at_the_p2g_position():
+    """The cell is the one at x^n = x - dt v (the step's P2G position), not at x."""
+    dim, dx = 2, 1.0
+    origin = np.zeros(2, np.int64)
+    G = np.zeros((6, 6))
+    G[3, 2] = 10.0                            # only node (3, 2) reaches the threshold
+    x = np.array([[4.5, 2.5], [2.5, 2.5]])
+    v = np.array([[10.0, 0.0], [10.0, 0.0]])
+    model = np.zeros(len(x), np.int8)
+    out = np.empty(len(x), np.int64)
+    count, _ = ge.FLAGGED_PARTICLES[2](x, v, 0.1, np.arange(len(x), dtype=np.int64), model,
+                                       G, 10.0, np.zeros(dim), dx, origin, out)
+    # x^n = (3.5, 2.5) lies in cell (3, 2) (corner (3, 2) flagged) and (1.5, 2.5) in cell
+    # (1, 2) (corners (1..2, 2..3), none flagged); at x the cells (4, 2) and (2, 2) would
+    # flag particle 1 instead.
+    assert out[:count].tolist() == [0]
