@@ -97,18 +97,28 @@ def test_failure_measure_and_plane_cut():
     assert np.array_equal(pts.bonds.status, pts.bonds.status[mirror_index(pts)])
 
 
-def test_inactive_fraction_and_plastic_stretch_raise_the_failure_stretch():
+def damaged_plate():
+    """The plate with 30 % of the bonds of the particles of cell (5, 5) broken (p_inactive
+    there 0.3-ish, so a stretch s breaks a bond there only when s > l_threshold (1 + p_bar)):
+    (pts, owner, partner, planes, p_inactive per particle)."""
     pts = plate()
     owner, q = half_bonds(pts)
-    # Break 30 % of the bonds of the particles of one cell: p_inactive there is 0.3-ish,
-    # so a stretch s breaks a bond there only when s > l_threshold (1 + p_bar).
     cell = np.floor(pts.x / CELL).astype(int)
     inside = np.flatnonzero(np.all(cell == [5, 5], axis=1))
     mine = np.flatnonzero(np.isin(owner, inside))
     pts.bonds.status[mine[::3]] = 0
     pts.bonds.status[mirror_index(pts)[mine[::3]]] = 0
     cp = planes()
-    p_cell = cp.inactive_fraction(pts, SerialComm())
+    return pts, owner, q, cp, cp.inactive_fraction(pts, SerialComm())
+
+
+def bond_stretch(pts, owner, q):
+    return np.linalg.norm(pts.x[q] - pts.x[owner], axis=1) / \
+        np.linalg.norm(pts.x0[q] - pts.x0[owner], axis=1) - 1
+
+
+def test_inactive_fraction_and_plastic_stretch_raise_the_failure_stretch():
+    pts, owner, q, cp, p_cell = damaged_plate()
     # Uniform stretch s = 1.1 l_threshold: bonds break where 1 + p_bar < 1.1 only.
     s = 1.1 * cp.threshold
     pts.x[:] = pts.x0 * (1 + s)
@@ -119,8 +129,7 @@ def test_inactive_fraction_and_plastic_stretch_raise_the_failure_stretch():
     cp.radius = float("nan")               # no cut (r2 <= nan is false): failure only
     cp.apply(pts, SerialComm(), plastic)
     pbar = 0.5 * (p_cell[owner] + p_cell[q])
-    stretch = np.linalg.norm(pts.x[q] - pts.x[owner], axis=1) / \
-        np.linalg.norm(pts.x0[q] - pts.x0[owner], axis=1) - 1
+    stretch = bond_stretch(pts, owner, q)
     l_val = (stretch - plastic) / (1 + pbar)
     want = (status0 == 1) & (l_val > cp.threshold)
     assert np.array_equal(pts.bonds.status == 0, (status0 == 0) | want)
@@ -131,15 +140,7 @@ def test_inactive_fraction_and_plastic_stretch_raise_the_failure_stretch():
 def test_plastic_stretch_is_subtracted_before_dividing_by_one_plus_p_inactive():
     """l = (s - e_p) / (1 + p_bar), not s / (1 + p_bar) - e_p: the two differ by e_p p_bar, so
     e_p sits on every bond, including those of the cell with p_bar ~ 0.3."""
-    pts = plate()
-    owner, q = half_bonds(pts)
-    cell = np.floor(pts.x / CELL).astype(int)
-    inside = np.flatnonzero(np.all(cell == [5, 5], axis=1))
-    mine = np.flatnonzero(np.isin(owner, inside))
-    pts.bonds.status[mine[::3]] = 0
-    pts.bonds.status[mirror_index(pts)[mine[::3]]] = 0
-    cp = planes()
-    p_cell = cp.inactive_fraction(pts, SerialComm())
+    pts, owner, q, cp, p_cell = damaged_plate()
     s = 2.276 * cp.threshold
     pts.x[:] = pts.x0 * (1 + s)
     status0 = pts.bonds.status.copy()
@@ -147,8 +148,7 @@ def test_plastic_stretch_is_subtracted_before_dividing_by_one_plus_p_inactive():
     cp.radius = float("nan")               # no cut: failure only
     cp.apply(pts, SerialComm(), plastic)
     pbar = 0.5 * (p_cell[owner] + p_cell[q])
-    stretch = np.linalg.norm(pts.x[q] - pts.x[owner], axis=1) / \
-        np.linalg.norm(pts.x0[q] - pts.x0[owner], axis=1) - 1
+    stretch = bond_stretch(pts, owner, q)
     want = (status0 == 1) & ((stretch - plastic) / (1 + pbar) > cp.threshold)
     wrong = (status0 == 1) & (stretch / (1 + pbar) - plastic > cp.threshold)
     assert np.array_equal(pts.bonds.status == 0, (status0 == 0) | want)
