@@ -4,6 +4,7 @@ constants (beta, the time-step micromodulus) and the crack-plane extension."""
 
 import math
 
+import numpy as np
 import pytest
 
 from hpcmpm.errors import SceneError
@@ -107,3 +108,32 @@ def test_crack_planes_cut_within_max_of_cell_and_horizon(per_cell):
     (ext,) = [e for e in sim._after_g2p if hasattr(e, "compute_forces")]
     delta = 3.015 * scene.dx / per_cell        # the default horizon, in the scene's units
     assert _crack_planes_of(ext).radius == pytest.approx(max(scene.dx, delta), rel=1e-12)
+
+
+def test_two_time_integration_moves_cracked_particles_by_their_own_force():
+    """003 §5.4's two-time integration: on the grid, particles with a broken bond leave the
+    grid's update and take a symplectic Euler step by their own PD force f, v = v^n + dt (f/m
+    + g), x = x^n + dt v, from the state before the step (`CrackPlaneIntegralMPM.after_g2p`);
+    every other particle keeps what G2P gave it. Unit test on the method alone (the walls
+    stubbed out; they are tested in test_pd_colliders.py)."""
+    from types import SimpleNamespace
+
+    from hpcmpm.pd.crack_planes import CrackPlaneIntegralMPM
+
+    rng = np.random.default_rng(4)
+    p = {"x": rng.random((6, 2)), "v": rng.random((6, 2)), "mass": rng.uniform(1.0, 2.0, 6)}
+    grid_update = {k: p[k].copy() for k in ("x", "v")}
+    at = np.array([1, 4])
+    x_n, v_n, f = rng.random((2, 2)), rng.random((2, 2)), rng.normal(size=(2, 2))
+    ext = object.__new__(CrackPlaneIntegralMPM)
+    ext._own = (at, x_n.copy(), v_n.copy(), f.copy())
+    ext.walls = SimpleNamespace(apply=lambda x, v, dt: None)
+    g, dt = np.array([0.0, -10.0, 0.0]), 0.1
+    ext.after_g2p(SimpleNamespace(particles=p, gravity=g, dim=2), dt)
+    v = v_n + dt * (f / p["mass"][at, None] + g[:2])
+    # The same operations in the same order: bitwise.
+    assert np.array_equal(p["v"][at], v) and np.array_equal(p["x"][at], x_n + dt * v)
+    rest = np.setdiff1d(np.arange(6), at)
+    for k in ("x", "v"):
+        assert np.array_equal(p[k][rest], grid_update[k][rest])
+    assert ext._own is None                    # used once
