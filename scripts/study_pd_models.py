@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcmpm.pd.bond_energy import (BondEnergy, bond_energy_scale, full_family_sum,
+from hpcmpm.pd.families import full_family_sum  # noqa: E402
+from hpcmpm.pd.bond_energy import (BondEnergy, bond_energy_scale,
                                    time_step_micromodulus)
 from hpcmpm.pd.families import find_families
 from hpcmpm.pd.integrator import PDBody, PDPoints

@@ -55,7 +55,8 @@ def check_chapter5(prm: dict, where: str) -> None:
 
 
 def _bond_energy_scale(material) -> tuple[float, tuple]:
-    from ..pd.bond_energy import bond_energy_scale, full_family_sum
+    from ..pd.bond_energy import bond_energy_scale
+    from ..pd.families import full_family_sum
 
     prm = material.params
     args = (material.dim, material.spacing, material.delta, prm["influence"],

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..pd.clamp import (NO_CLAMP, NO_FACES, clamp_parameters, faces_within_reach,
                          sticky_faces)
-from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, family_radius,
+from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, family_radius, full_family_sum,
                            half_bonds_per_particle, influence_code)
 from ..pd import moduli
 from ..pd.load import ACTIVE_BONDS
@@ -306,20 +306,9 @@ class Peridynamic(Material):
     def dt_limit(self, dx: float) -> float:
         """0.8 sqrt(2 rho / sum_q V_q c w/|X|) over a full lattice family (the most bonds a
         particle has; the issue's rule), the same on every rank."""
-        h = self.spacing
-        r = self.family_radius()
-        k = int(math.ceil(r / h))
-        axis = np.arange(-k, k + 1) * h
-        grids = np.meshgrid(*[axis] * self.dim, indexing="ij")
-        dist = np.sqrt(sum(g * g for g in grids)).ravel()
-        dist = dist[(dist > 0) & ((dist < r) if self.params["partial_volumes"] else (dist <= r))]
-        beta = np.minimum(1.0, (self.delta + 0.5 * h - dist) / h) \
-            if self.params["partial_volumes"] else 1.0
-        code = influence_code(self.params["influence"])
-        omega = [np.ones_like(dist), self.delta / dist, np.maximum(1 - dist / self.delta, 0),
-                 np.exp(-(dist / self.delta) ** 2)][code]
-        vol = h ** self.dim
-        stiffness = np.sum(vol * self.time_step_micromodulus() * omega * beta / dist)
+        stiffness = self.time_step_micromodulus() * full_family_sum(
+            self.dim, self.spacing, self.delta, self.params["influence"],
+            bool(self.params["partial_volumes"]), power=-1)
         return 0.8 * math.sqrt(2.0 * self.density / stiffness)
 
     def return_map(self, fields, dt) -> None:

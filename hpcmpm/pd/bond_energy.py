@@ -61,27 +61,10 @@ from numba import njit
 
 from .clamp import NO_CLAMP, NO_FACES
 from .correspondence import correspondence_kinematics
-from .families import INFLUENCES, family_radius
+from .families import full_family_sum
 from .geometry import bond_vectors, norm3
 
 PLASTIC_STATE = "plastic_stretch"
-
-
-def full_family_sum(dim: int, spacing: float, delta: float, influence: str = "constant",
-                    partial_volumes: bool = True, power: int = 0) -> float:
-    """sum_q w |X|^power V_q over the family of a lattice point with a complete neighbourhood
-    (cubic lattice of ``spacing``, V_q = spacing^d, the families.py bond rule)."""
-    h = spacing
-    r = family_radius(delta, h, partial_volumes)
-    k = int(math.ceil(r / h))
-    axis = np.arange(-k, k + 1) * h
-    grids = np.meshgrid(*[axis] * dim, indexing="ij")
-    dist = np.sqrt(sum(g * g for g in grids)).ravel()
-    dist = dist[(dist > 0) & ((dist < r) if partial_volumes else (dist <= r))]
-    frac = np.minimum(1.0, (delta + 0.5 * h - dist) / h) if partial_volumes else 1.0
-    omega = [np.ones_like(dist), delta / dist, np.maximum(1 - dist / delta, 0),
-             np.exp(-(dist / delta) ** 2)][INFLUENCES.index(influence)]
-    return float(np.sum(omega * frac * dist ** power) * h ** dim)
 
 
 def bond_energy_scale(dim: int, lam: float, mu: float, family_sum: float) -> float:

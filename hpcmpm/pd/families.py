@@ -76,6 +76,24 @@ def partial_volume(r, delta, dx, on):
     return (delta + 0.5 * dx - r) / dx
 
 
+def full_family_sum(dim: int, spacing: float, delta: float, influence: str = "constant",
+                    partial_volumes: bool = True, power: int = 0) -> float:
+    """sum_q w |X|^power V_q over the family of a lattice point with a complete neighbourhood
+    (cubic lattice of ``spacing``, V_q = spacing^d, the bond rule of `find_families`): the
+    lattice sums of the bond-energy scale beta and of the Silling-Askari time step."""
+    h = spacing
+    r = family_radius(delta, h, partial_volumes)
+    k = int(math.ceil(r / h))
+    axis = np.arange(-k, k + 1) * h
+    grids = np.meshgrid(*[axis] * dim, indexing="ij")
+    dist = np.sqrt(sum(g * g for g in grids)).ravel()
+    dist = dist[(dist > 0) & ((dist < r) if partial_volumes else (dist <= r))]
+    frac = np.minimum(1.0, (delta + 0.5 * h - dist) / h) if partial_volumes else 1.0
+    omega = [np.ones_like(dist), delta / dist, np.maximum(1 - dist / delta, 0),
+             np.exp(-(dist / delta) ** 2)][INFLUENCES.index(influence)]
+    return float(np.sum(omega * frac * dist ** power) * h ** dim)
+
+
 def influence_moment(name: str, power: int, delta: float) -> float:
     """I_k = int_0^delta omega(r) r^k dr in closed form (calibrates the PMB micromodulus and
     the fracture-energy stretch for any influence function)."""

@@ -9,7 +9,8 @@ import pytest
 
 from hpcmpm.errors import SceneError
 from hpcmpm.materials import make_material
-from hpcmpm.pd.bond_energy import BondEnergy, full_family_sum
+from hpcmpm.pd.bond_energy import BondEnergy
+from hpcmpm.pd.families import full_family_sum
 from hpcmpm.pd.viscoelastic_lps import ViscoelasticLPS
 from hpcmpm.runner import initial_particles, make_domain
 from hpcmpm.scene import parse_scene

@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from hpcmpm.pd.bond_energy import (BondEnergy, bond_energy_scale, full_family_sum,
+from hpcmpm.pd.families import full_family_sum
+from hpcmpm.pd.bond_energy import (BondEnergy, bond_energy_scale,
                                    PLASTIC_STATE)
 from hpcmpm.pd.families import find_families
 from hpcmpm.pd.integrator import PDPoints
