@@ -81,7 +81,7 @@ def make_chapter5_model(material, s0: float, c_dt: float):
 
         beta, _ = _bond_energy_scale(material)
         return BondEnergy(material.dim, material.lam, material.mu, beta, prm["plastic_yield"],
-                          s0, c_dt)
+                          s0, c_dt, material.clamp_faces, material.clamp_array())
     from ..pd.viscoelastic_lps import ViscoelasticLPS
 
     return ViscoelasticLPS(material.bulk, material.mu, prm["relaxation_time"], prm["memory"],

@@ -21,10 +21,10 @@ micromodulus of the same bulk modulus).
 ``clamp`` (not in 003): an integral-based body next to a sticky domain wall is bonded to the
 mirror image of its family there (hpcmpm/pd/clamp.py, as the SPB coupling's clamp), so the
 wall holds it as a clamped end and not only through the grid nodes. "auto" (the default)
-turns it on for ``integration = "grid"`` with ``model = "correspondence"``, ``"pmb"`` or
-``"lps"`` and leaves it off elsewhere; "sticky_walls" asks for it (an error where it is not
-implemented: bond_energy and viscoelastic_lps, whose per-bond state a ghost bond would need,
-and the off-grid integrator); "none" turns it off. On the axial bar
+turns it on for ``integration = "grid"`` with ``model = "correspondence"``, ``"pmb"``,
+``"lps"`` or ``"bond_energy"`` and leaves it off elsewhere; "sticky_walls" asks for it (an
+error where it is not implemented: viscoelastic_lps, whose ghost bonds would need their own
+Maxwell history, and the off-grid integrator); "none" turns it off. On the axial bar
 (inputs/ibmpm_bar_2d.toml) it takes the correspondence period error from first order
 (1.15 % / 0.60 % at 25 / 50 cells) to second (0.11 % / 0.022 %): the wall cut the families
 of the fixed end.
@@ -48,7 +48,7 @@ from .params import YOUNG, Param, choice, resolve_params
 from .pd_models import EXTRA_PARAMETERS, check_chapter5
 
 # The models with the clamp's ghost bonds (hpcmpm/pd/clamp.py), on the grid.
-CLAMP_MODELS = ("correspondence", "pmb", "lps")
+CLAMP_MODELS = ("correspondence", "pmb", "lps", "bond_energy")
 
 
 def _point(x) -> str:
@@ -209,6 +209,13 @@ class Peridynamic(Material):
                      if b.material == self.spec.name]
             self.clamp_faces = faces_within_reach(sticky_faces(scene), boxes,
                                                   self.family_radius())
+            if prm["model"] == "bond_energy" and prm["plastic_yield"] < math.inf:
+                from ..pd.bond_energy import self_mirror_field_names
+
+                # The plastic stretch of each clamped particle's bond to its own image.
+                self.fields = {**type(self).fields, **{
+                    f"pd_{k}": FieldSpec(SCALAR)
+                    for k in self_mirror_field_names(len(self.clamp_faces))}}
 
     def clamp_array(self) -> np.ndarray:
         """The kernels' clamp parameters (clamp.clamp_parameters); unused without faces."""

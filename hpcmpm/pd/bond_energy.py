@@ -50,6 +50,14 @@ Under a uniform deformation the two forms agree (Ybar = Y); psi_p = inf is eq. 5
 Passes: `correspondence_kinematics` (failure on the total stretch, K, F) on owners, the halo
 refreshes F and ``active``, then `bond_energy_forces` (return map, forces). A detached point
 (correspondence.py) has no Ybar term.
+
+The clamp at sticky walls (clamp.py; integral-based bodies): K, F and e_iso of a particle
+within reach of such a wall sum over its ghost bonds too, e_iso of the ghost q' is that of
+q's image family (``eiso_image``, refreshed in the halo), F_q' = I - (F_q - I) R, and each
+ghost bond returns and keeps its own plastic stretch (`bond_energy_clamp_terms`; the states
+``mirror_plastic_stretch<f>`` per half-bond and the particle fields
+``pd_self_mirror_plastic_stretch<f>``, only with psi_p finite). Ghost bonds do not break and
+do not count in the damage or the crack planes.
 """
 
 from __future__ import annotations
@@ -59,12 +67,25 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES
+from .clamp import (NO_CLAMP, NO_FACES, clamp_reach, ghost_bond, ghost_scratch, ghost_source,
+                    ghost_stretch_sums, ghost_weight, near_a_face)
 from .correspondence import correspondence_kinematics
 from .families import full_family_sum
 from .geometry import bond_vectors, norm3
 
 PLASTIC_STATE = "plastic_stretch"
+
+
+def mirror_state_names(n_faces: int) -> tuple[str, ...]:
+    """Per-bond states of the clamp's ghost bonds, one per clamping face: the plastic stretch
+    of the bond to the image of the half-bond's partner."""
+    return tuple(f"mirror_plastic_stretch{k}" for k in range(n_faces))
+
+
+def self_mirror_field_names(n_faces: int) -> tuple[str, ...]:
+    """Per-particle states (``pd_<name>`` particle fields), one per clamping face: the
+    plastic stretch of the ghost bond to the particle's own image."""
+    return tuple(f"self_mirror_plastic_stretch{k}" for k in range(n_faces))
 
 
 def bond_energy_scale(dim: int, lam: float, mu: float, family_sum: float) -> float:
@@ -94,11 +115,18 @@ def _apply(F, p, X0, X1, X2, dim):
 
 
 @njit(cache=True, error_model="numpy")
-def bond_iso_stretches(x, x0, vol, offsets, slot, status, weight, n_owned, out):
+def bond_iso_stretches(x, x0, vol, offsets, slot, status, weight, n_owned, faces, clamp, out,
+                       image):
     """out_p = sum_q w |X| (|Y| - |X|) V_q / sum_q w |X|^2 V_q over intact bonds: the LPS
     dilatation over d, the mean bond stretch (= J^{1/d} - 1 for an isotropic stretch, tr eps/d
-    to first order for any uniform strain)."""
+    to first order for any uniform strain). With clamping ``faces`` the sums take p's ghost
+    bonds too, and image[p, f] is the mean bond stretch of p's image across face f (the
+    ghost's, which the ghost bonds of p's partners need; 0 out of reach): clamp.py,
+    `clamp.ghost_stretch_sums`."""
     dim = x.shape[1]
+    ghosts = ghost_scratch(offsets, faces)
+    X = np.empty(3)
+    Y = np.empty(3)
     for p in range(n_owned):
         num = 0.0
         den = 0.0
@@ -111,6 +139,16 @@ def bond_iso_stretches(x, x0, vol, offsets, slot, status, weight, n_owned, out):
             wv = weight[b] * vol[q] * xl
             num += wv * (norm3(y0, y1, y2) - xl)
             den += wv * xl
+        near = faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp)
+        for fc in range(faces.shape[0]):
+            image[p, fc] = 0.0
+            if not near:
+                continue
+            num, den, image[p, fc], ng = ghost_stretch_sums(
+                x, x0, vol, offsets, slot, status, weight, p, int(faces[fc, 0]), faces[fc, 1],
+                clamp, ghosts, X, Y, num, den)
+        for fc in range(faces.shape[0]):
+            image[p, fc] = image[p, fc] / den if den > 0.0 else 0.0
         out[p] = num / den if den > 0.0 else 0.0
 
 
@@ -207,6 +245,93 @@ def bond_energy_density(x, x0, vol, offsets, slot, status, weight, F, active, e_
 
 
 @njit(cache=True, error_model="numpy")
+def _ghost_apply(F, q, X, axis, dim):
+    """F_q' X for the ghost q' of q (clamp.py): F_q' = I - (F_q - I) R, R flipping the axis
+    component, as the correspondence clamp takes it."""
+    r0 = -X[0] if axis == 0 else X[0]
+    r1 = -X[1] if axis == 1 else X[1]
+    r2 = -X[2] if axis == 2 else X[2]
+    a0, a1, a2 = _apply(F, q, r0, r1, r2, dim)
+    return X[0] - (a0 - r0), X[1] - (a1 - r1), (X[2] - (a2 - r2)) if dim == 3 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def bond_energy_clamp_terms(x, x0, vol, offsets, slot, status, F, active, eiso, eiso_image,
+                            mirror_ep, self_ep, beta, lam, mu, psi_p, commit, n_owned, faces,
+                            clamp, energy, f):
+    """The clamp's ghost bonds (clamp.py) of the owned points within reach of a face, added
+    to f (n_owned, d) as `bond_energy_forces` adds the real ones, or with ``energy`` their
+    psi V_q to f[:, 0] (`bond_energy_density`). The ghost q' of q has the state of its source
+    (F_q' = I - (F_q - I) R, active_q) and the mean bond stretch of q's image
+    (eiso_image[q, f], `bond_iso_stretches`). A ghost bond has its own plastic stretch:
+    mirror_ep[f][k] for the ghost of bond k's partner, self_ep[f][p] for p's own image
+    (read and returned only with psi_p finite; ``commit`` as in `bond_energy_forces`)."""
+    dim = x.shape[1]
+    stiff = 2.0 * mu + lam
+    plastic = psi_p < np.inf
+    reach = clamp_reach(clamp)
+    X = np.empty(3)
+    Y = np.empty(3)
+    for p in range(n_owned):
+        if not near_a_face(x0, p, faces, clamp):
+            continue
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for fc in range(faces.shape[0]):
+            axis = int(faces[fc, 0])
+            plane = faces[fc, 1]
+            if abs(x0[p, axis] - plane) >= reach:
+                continue
+            for k in range(offsets[p] - 1, offsets[p + 1]):
+                q = ghost_source(offsets, status, slot, p, k)
+                if q < 0:
+                    continue
+                ghost_bond(x, x0, p, q, axis, plane, dim, Y, X)
+                w = ghost_weight(X, clamp)
+                if w == 0.0:
+                    continue
+                xl = norm3(X[0], X[1], X[2])
+                yl = norm3(Y[0], Y[1], Y[2])
+                s = yl / xl - 1.0
+                wb = beta * w
+                ep = 0.0
+                if plastic:
+                    ep = self_ep[fc][p] if k < offsets[p] else mirror_ep[fc][k]
+                if plastic and not energy:
+                    e_dev = s - 0.5 * (eiso[p] + eiso_image[q, fc])
+                    dep = plastic_return(wb * stiff * (e_dev - ep) / xl, wb * stiff, xl,
+                                         psi_p)
+                    if abs(s - ep - dep) <= abs(s - ep):     # dissipation (module docstring)
+                        ep += dep
+                    if commit:
+                        if k < offsets[p]:
+                            self_ep[fc][p] = ep
+                        else:
+                            mirror_ep[fc][k] = ep
+                pb0, pb1, pb2 = _apply(F, p, X[0], X[1], X[2], dim)
+                if energy:
+                    sb = s - ep
+                    if not plastic:
+                        sb = norm3(pb0, pb1, pb2) / xl - 1.0 - ep if active[p] != 0.0 else 0.0
+                    f0 += wb * (mu * sb * sb + 0.5 * lam * (s - ep) * (s - ep)) * vol[q]
+                    continue
+                qb0, qb1, qb2 = _ghost_apply(F, q, X, axis, dim)
+                u0, u1, u2 = _bar_term(pb0, pb1, pb2, xl, ep, active[p], plastic, s)
+                v0, v1, v2 = _bar_term(qb0, qb1, qb2, xl, ep, active[q], plastic, s)
+                c_mu = 2.0 * mu * wb / xl * (vol[p] * vol[q])
+                c_lam = 2.0 * lam * wb / xl * (s - ep) / yl * (vol[p] * vol[q])
+                f0 += c_mu * (u0 + v0) + c_lam * Y[0]
+                f1 += c_mu * (u1 + v1) + c_lam * Y[1]
+                f2 += c_mu * (u2 + v2) + c_lam * Y[2]
+        f[p, 0] += f0
+        if not energy:
+            f[p, 1] += f1
+            if dim == 3:
+                f[p, 2] += f2
+
+
+@njit(cache=True, error_model="numpy")
 def yield_values(x, x0, offsets, slot, status, weight, eiso, e_p, beta, lam, mu, psi_p,
                  n_owned, out):
     """f = E_dev^2/2 - psi_p of every half-bond (eq. 5.10; -inf for broken ones)."""
@@ -239,12 +364,11 @@ class BondEnergy:
     """
 
     name = "bond_energy"
-    persistent_fields: tuple[str, ...] = ()
-    halo_fields = ("F", "active", "eiso")
+    mutable_fields: tuple[str, ...] = ()
 
     def __init__(self, dim: int, lam: float, mu: float, scale: float,
                  plastic_yield: float = math.inf, critical_stretch: float = math.inf,
-                 time_step_c: float = 0.0):
+                 time_step_c: float = 0.0, clamp_faces=NO_FACES, clamp=NO_CLAMP):
         self.dim = dim
         self.lam = float(lam)
         self.mu = float(mu)
@@ -252,14 +376,32 @@ class BondEnergy:
         self.psi_p = float(plastic_yield)
         self.s0 = float(critical_stretch)
         self.c_dt = float(time_step_c)
+        self.clamp_faces = np.ascontiguousarray(clamp_faces, dtype=np.float64)
+        self.clamp = np.ascontiguousarray(clamp, dtype=np.float64)
+        nf = len(self.clamp_faces)
+        self.halo_fields = ("F", "active", "eiso") + (("eiso_image",) if nf else ())
+        # The ghost bonds' plastic stretches (bond_energy_clamp_terms): per face, one per
+        # half-bond (the ghost of its partner, a bond state that migrates with the segment)
+        # and one per particle (its own image, a particle field that migrates with it).
+        self.mirror_states = mirror_state_names(nf) if self.psi_p < math.inf else ()
+        self.self_fields = self_mirror_field_names(nf) if self.psi_p < math.inf else ()
+        self.persistent_fields = self.self_fields
+        self.mutable_fields = self.self_fields
         self.F = None
         self.resize(0)          # a rank may hold none of the body's particles
 
     def time_step_micromodulus(self) -> float:
         return self.c_dt
 
+    def _declare_state(self, bonds) -> None:
+        bonds.add_state(PLASTIC_STATE)
+        for name in self.mirror_states:
+            bonds.add_state(name)
+
     def setup(self, pts) -> None:
-        pts.bonds.add_state(PLASTIC_STATE)
+        self._declare_state(pts.bonds)
+        for name in self.self_fields:
+            pts.fields.setdefault(name, np.zeros(len(pts.x)))
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
@@ -271,22 +413,37 @@ class BondEnergy:
         self.Kinv = np.zeros((n, d, d))
         self.active = np.zeros(n)
         self.eiso = np.zeros(n)
+        self.eiso_image = np.zeros((n, len(self.clamp_faces)))
 
     def update_state(self, pts) -> int:
         b = pts.bonds
-        b.add_state(PLASTIC_STATE)
+        self._declare_state(b)
         broken = correspondence_kinematics(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status,
                                            b.weight, self.s0, pts.n_owned, self.F, self.Kinv,
-                                           self.active, NO_FACES, NO_CLAMP)
+                                           self.active, self.clamp_faces, self.clamp)
         bond_iso_stretches(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                           pts.n_owned, self.eiso)
+                           pts.n_owned, self.clamp_faces, self.clamp, self.eiso,
+                           self.eiso_image)
         return broken
+
+    def _clamp_terms(self, pts, commit, energy, out) -> None:
+        if not len(self.clamp_faces):
+            return
+        b = pts.bonds
+        none = (np.empty(0),)           # elastic: no ghost state (never read)
+        mirror = tuple(b.state[k] for k in self.mirror_states) or none
+        own = tuple(pts.fields[k] for k in self.self_fields) or none
+        bond_energy_clamp_terms(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, self.F,
+                                self.active, self.eiso, self.eiso_image, mirror, own,
+                                self.beta, self.lam, self.mu, self.psi_p, commit,
+                                pts.n_owned, self.clamp_faces, self.clamp, energy, out)
 
     def forces(self, pts, f, commit: bool = True) -> int:
         b = pts.bonds
         bond_energy_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                            self.F, self.active, self.eiso, b.state[PLASTIC_STATE], self.beta,
                            self.lam, self.mu, self.psi_p, commit, pts.n_owned, f)
+        self._clamp_terms(pts, commit, False, f)
         return 0
 
     def energy_density(self, pts, out=None) -> np.ndarray:
@@ -295,6 +452,7 @@ class BondEnergy:
         bond_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                             self.F, self.active, b.state[PLASTIC_STATE], self.beta, self.lam,
                             self.mu, self.psi_p < math.inf, pts.n_owned, out)
+        self._clamp_terms(pts, False, True, out.reshape(-1, 1))
         return out
 
     def yield_values(self, pts) -> np.ndarray:

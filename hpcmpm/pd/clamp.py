@@ -30,8 +30,19 @@ state (pmb.py); LPS's needs the ghost's dilatation, summed over the image of its
 family (lps.py). With them, a clamped PMB or LPS body is the body continued through the wall
 by the odd extension, exactly, under any displacement (tests/unit/test_pd_clamp.py).
 
-Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based correspondence, PMB and
-LPS bodies (``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
+The bond-energy model (bond_energy.py) takes F_p over the ghost bonds as correspondence does,
+the ghost's F_q' = I - (F_q - I) R and active flag from its source, and the ghost's mean bond
+stretch summed over the image of its source's family as LPS's dilatation
+(`ghost_stretch_sums`, shared by both). With bond plasticity each ghost bond has its own
+plastic stretch, which is history, not a function of the source's: one per half-bond and
+clamping face (the ghost of the bond's partner, a bond state that migrates and checkpoints
+with the segment) and one per particle and face (the ghost of the particle itself, a
+particle field). A clamped bond-energy body is the continued body exactly under
+displacements that depend on the distance from the wall only, and its plastic return under
+any displacement (the return reads no F).
+
+Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based correspondence, PMB,
+LPS and bond-energy bodies (``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
 key, with the walls its bodies start within reach of: `faces_within_reach`). The kernels
 take the clamp as ``clamp_parameters``: the horizon, the particle spacing, the influence
 function and whether partial volumes are on, so that a ghost's weight follows the rule its
@@ -39,6 +50,8 @@ source family was built with (families.py).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -97,6 +110,18 @@ def faces_within_reach(faces: np.ndarray, boxes, reach: float) -> np.ndarray:
                 keep.append(k)
                 break
     return np.ascontiguousarray(faces[keep], dtype=np.float64).reshape(-1, 2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def near_a_face(x0, p, faces, clamp):
+    """Whether p starts within a family radius of one of ``faces`` (only then has it ghost
+    bonds): the kernels test this before calling into the ghost code, whose calls with many
+    arguments cost more than the test for the far points."""
+    reach = clamp_reach(clamp)
+    for fc in range(faces.shape[0]):
+        if abs(x0[p, int(faces[fc, 0])] - faces[fc, 1]) < reach:
+            return True
+    return False
 
 
 @njit(cache=True, error_model="numpy")
@@ -176,3 +201,44 @@ def ghost_weight(X, clamp):
     if code == LINEAR_INFLUENCE:
         return w * r / delta
     return influence(code, r, delta) * w
+
+
+@njit(cache=True, error_model="numpy")
+def ghost_stretch_sums(x, x0, vol, offsets, slot, status, weight, p, axis, plane, clamp,
+                       ghosts, X, Y, num, den):
+    """The bond-stretch sums of p across the face x_axis = plane, for the dilatation of LPS
+    and the mean bond stretch of the bond-energy model: p's ghost bonds added to the running
+    sums ``num`` (sum w' |X'| (|Y'| - |X'|) V_q) and ``den`` (sum w' |X'|^2 V_q), and
+    ``image``, the same numerator over the family of p's image p' across the face (p's
+    intact bonds seen from p': X' = R X, Y' = R X - (u_r - u_p); and the images r-p' of its
+    ghost bonds p-r', the same reference length, the Y of `ghost_bond` with the roles
+    swapped). The image family is the mirror of p's, so its denominator is p's own.
+    Returns (num, den, image, ng); image is 0 where p has no ghost bond there (ng = 0).
+    ``ghosts``: `ghost_scratch`; X, Y: scratch of length 3."""
+    GX, GY, GW, GQ = ghosts
+    ng = ghost_family(x, x0, offsets, slot, status, p, axis, plane, clamp, GX, GY, GW, GQ)
+    if ng == 0:
+        return num, den, 0.0, 0
+    dim = x.shape[1]
+    image = 0.0
+    for b in range(offsets[p], offsets[p + 1]):
+        r = slot[b]
+        if status[b] == 0 or r < 0:
+            continue
+        y2 = 0.0
+        x2 = 0.0
+        for i in range(dim):
+            Xi = x0[r, i] - x0[p, i]
+            yi = (-Xi if i == axis else Xi) - ((x[r, i] - x0[r, i]) - (x[p, i] - x0[p, i]))
+            x2 += Xi * Xi
+            y2 += yi * yi
+        xl = math.sqrt(x2)
+        image += weight[b] * xl * (math.sqrt(y2) - xl) * vol[r]
+    for g in range(ng):
+        r = GQ[g]
+        xl = norm3(GX[g, 0], GX[g, 1], GX[g, 2])
+        num += GW[g] * xl * (norm3(GY[g, 0], GY[g, 1], GY[g, 2]) - xl) * vol[r]
+        den += GW[g] * xl * xl * vol[r]
+        ghost_bond(x, x0, r, p, axis, plane, dim, Y, X)
+        image += GW[g] * xl * (norm3(Y[0], Y[1], Y[2]) - xl) * vol[r]
+    return num, den, image, ng

@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch
+from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch, near_a_face
 from .geometry import bond_vectors, norm3
 
 # det K below this fraction of (tr K / d)^d: the family does not span the space.
@@ -142,7 +142,7 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
                 for j in range(dim):
                     K[i, j] += wv * Xv[i] * Xv[j]
                     N[i, j] += wv * Yv[i] * Xv[j]
-        if faces.shape[0] > 0:
+        if faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp):
             _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts, K, N,
                          F, F, active, 0.0, Xv, False)     # A, acc unused
         tr = 0.0
@@ -239,7 +239,7 @@ def correspondence_forces(x, x0, vol, offsets, slot, status, weight, A, F, activ
             _pair_force(x, x0, vol, p, slot[b], dim, weight[b], A, F, active, G, Xv, Yv, fb)
             for i in range(dim):
                 acc[i] += fb[i]
-        if faces.shape[0] > 0:
+        if faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp):
             _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts,
                          unused, unused, A, F, active, G, acc, True)
         for i in range(dim):

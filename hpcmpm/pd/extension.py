@@ -207,6 +207,11 @@ class PDExtension:
         if len(self.force) != n:
             self.force = np.empty((n, self.sim.dim))
         self.broken += bond_forces(self.model, self.pts, self.force, self.halo.refresh_rows(n))
+        # Per-particle state the force pass updated (the bond-energy clamp's plastic
+        # stretches) goes back to its particle field, which migrates and checkpoints.
+        p = self.sim.particles
+        for k in getattr(self.model, "mutable_fields", ()):
+            p[f"pd_{k}"][start:stop] = self.pts.fields[k][:n]
         return self.force
 
     def strain_energy(self, sim) -> float:

@@ -36,7 +36,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES, ghost_bond, ghost_family, ghost_scratch
+from .clamp import (NO_CLAMP, NO_FACES, ghost_family, ghost_scratch, ghost_stretch_sums,
+                    near_a_face)
 from .geometry import bond_vectors, norm3
 
 
@@ -193,45 +194,25 @@ def lps_clamp_dilatation(x, x0, vol, offsets, slot, status, weight, m, n_owned, 
                          theta, theta_image):
     """For the owned points within reach of a face: add their ghost bonds to theta (after
     `lps_dilatation`, so after failure), and theta_image[p, f], the dilatation of p's image
-    across face f (module docstring). theta_image is 0 where p is out of reach of f."""
+    across face f (module docstring; the sums: `clamp.ghost_stretch_sums`). theta_image is 0
+    where p is out of reach of f."""
     dim = x.shape[1]
-    GX, GY, GW, GQ = ghost_scratch(offsets, faces)
+    ghosts = ghost_scratch(offsets, faces)
     X = np.empty(3)
     Y = np.empty(3)
     for p in range(n_owned):
         extra = 0.0
+        unused = 0.0
+        near = near_a_face(x0, p, faces, clamp)
         for fc in range(faces.shape[0]):
             theta_image[p, fc] = 0.0
-            axis = int(faces[fc, 0])
-            ng = ghost_family(x, x0, offsets, slot, status, p, axis, faces[fc, 1], clamp,
-                              GX, GY, GW, GQ)
-            if ng == 0 or m[p] <= 0.0:
+            if m[p] <= 0.0 or not near:
                 continue
-            image = 0.0
-            # p's intact bonds seen from p': X' = R X, Y' = R X - (u_r - u_p), |X'| = |X|.
-            for b in range(offsets[p], offsets[p + 1]):
-                r = slot[b]
-                if status[b] == 0 or r < 0:
-                    continue
-                y2 = 0.0
-                x2 = 0.0
-                for i in range(dim):
-                    Xi = x0[r, i] - x0[p, i]
-                    yi = (-Xi if i == axis else Xi) - ((x[r, i] - x0[r, i])
-                                                       - (x[p, i] - x0[p, i]))
-                    x2 += Xi * Xi
-                    y2 += yi * yi
-                xl = math.sqrt(x2)
-                image += weight[b] * xl * (math.sqrt(y2) - xl) * vol[r]
-            # p's ghost bonds p-r' (theta_p), and their images r-p' (theta_p'): the same
-            # reference length, the image's Y that of `ghost_bond` with the roles swapped.
-            for g in range(ng):
-                r = GQ[g]
-                xl = norm3(GX[g, 0], GX[g, 1], GX[g, 2])
-                extra += GW[g] * xl * (norm3(GY[g, 0], GY[g, 1], GY[g, 2]) - xl) * vol[r]
-                ghost_bond(x, x0, r, p, axis, faces[fc, 1], dim, Y, X)
-                image += GW[g] * xl * (norm3(Y[0], Y[1], Y[2]) - xl) * vol[r]
-            theta_image[p, fc] = dim * image / m[p]
+            extra, unused, image, ng = ghost_stretch_sums(
+                x, x0, vol, offsets, slot, status, weight, p, int(faces[fc, 0]), faces[fc, 1],
+                clamp, ghosts, X, Y, extra, unused)
+            if ng > 0:
+                theta_image[p, fc] = dim * image / m[p]
         if m[p] > 0.0:
             theta[p] += dim * extra / m[p]
 
@@ -246,7 +227,7 @@ def lps_clamp_terms(x, x0, vol, offsets, slot, status, m, theta, theta_image, ka
     alpha_m = shear_coefficient(mu, dim)
     GX, GY, GW, GQ = ghost_scratch(offsets, faces)
     for p in range(n_owned):
-        if m[p] <= 0.0:
+        if m[p] <= 0.0 or not near_a_face(x0, p, faces, clamp):
             continue
         for fc in range(faces.shape[0]):
             ng = ghost_family(x, x0, offsets, slot, status, p, int(faces[fc, 0]),

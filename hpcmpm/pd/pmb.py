@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch
+from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch, near_a_face
 from .geometry import bond_vectors, norm3
 
 
@@ -117,6 +117,8 @@ def pmb_clamp_terms(x, x0, vol, offsets, slot, status, c, n_owned, faces, clamp,
     dim = x.shape[1]
     GX, GY, GW, GQ = ghost_scratch(offsets, faces)
     for p in range(n_owned):
+        if not near_a_face(x0, p, faces, clamp):
+            continue
         for fc in range(faces.shape[0]):
             ng = ghost_family(x, x0, offsets, slot, status, p, int(faces[fc, 0]),
                               faces[fc, 1], clamp, GX, GY, GW, GQ)

@@ -77,3 +77,49 @@ def test_viscoelastic_bond_state_restarts_bitwise(tmp_path):
     # Positions would differ if the stored forces (ve_iso, ve_dev) or lengths had been lost.
     for name in ("x", "v"):
         assert np.array_equal(got[name], ref[name]), name
+
+
+def test_clamped_bond_plasticity_restarts_bitwise(tmp_path):
+    """ibmpm_wall_fracture_2d with its wall swaying on the sticky floor (an initial sideways
+    velocity): the clamp's ghost bonds at the floor yield (hpcmpm/pd/bond_energy.py,
+    `bond_energy_clamp_terms`), and their plastic stretches (a bond state per face and a
+    particle field for each particle's own image) checkpoint with the run: a 2-rank restart
+    from the half-way checkpoint is bitwise the uninterrupted run, and the same restart with
+    the particles' ghost stretches changed in the checkpoint is not (the restart reads them).
+    Zeroing them would not show it: the scene is perfectly plastic, and a bond that keeps
+    flowing returns to the yield surface at e_p = e_dev -+ sqrt(2 psi_p) |X|/k whatever its
+    old e_p (the corrected eq. 5.11), so a flowing bond's history is erased every step."""
+    import shutil
+
+    import h5py
+
+    from hpcmpm.io import checksum as cks
+
+    dt = 6e-5
+    fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}",
+             "--set", "bodies.0.velocity=[2.0, 0.0]"]
+    scene = "inputs/ibmpm_wall_fracture_2d.toml"
+    full = tmp_path / "full"
+    hpcmpm(2, "run", scene, "--out", str(full), "--end-time", str(50 * dt), *fixed)
+    ref = last_frame(full, 50, 2)
+    part = tmp_path / "part"
+    hpcmpm(2, "run", scene, "--out", str(part), "--end-time", str(25 * dt), *fixed)
+    ckpt = latest_checkpoint(part)
+    with h5py.File(ckpt) as h:
+        own = h["particles/pd_self_mirror_plastic_stretch0"][:]
+    with h5py.File(part / "pd_bonds_wall" / ckpt.name) as h:
+        mirror = h["particles/state.mirror_plastic_stretch0"][:]
+    assert np.count_nonzero(own) > 10 and np.count_nonzero(mirror) > 100   # they yielded
+    lost = tmp_path / "lost"
+    shutil.copytree(part, lost)
+    with h5py.File(lost / ckpt.name, "r+") as h:
+        dset = h["particles/pd_self_mirror_plastic_stretch0"]
+        dset[...] = 0.5         # a plastic stretch beyond every bond's current stretch
+        dset.attrs["checksum"] = cks.format_checksum(cks.checksum(dset[:]))
+    hpcmpm(2, "restart", str(ckpt), "--end-time", str(50 * dt))
+    got = last_frame(part, 50, 2)
+    assert np.array_equal(got["id"], ref["id"])
+    for name in ("x", "v"):
+        assert np.array_equal(got[name], ref[name]), name
+    hpcmpm(2, "restart", str(lost / ckpt.name), "--end-time", str(50 * dt))
+    assert not np.array_equal(last_frame(lost, 50, 2)["x"], ref["x"])

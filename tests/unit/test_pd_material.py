@@ -51,7 +51,8 @@ def sim_with(old: str, new: str) -> Simulation:
      "materials[0].partial_volumes: must be true or false, got 1"),
     ('model = "pmb"', 'model = "pmb"\nclamp = "sticky_walls"',
      "materials[0].clamp: 'sticky_walls' is implemented for model = 'correspondence' | "
-     "'pmb' | 'lps' with integration = 'grid' only (this body: model = 'pmb', integration = "
+     "'pmb' | 'lps' | 'bond_energy' with integration = 'grid' only (this body: model = 'pmb', "
+     "integration = "
      "'pd'); use 'auto' or 'none'"),
     ('model = "pmb"', 'model = "pmb"\nclamp = "yes"',
      "materials[0].clamp: unknown value 'yes'"),

@@ -42,7 +42,9 @@ def lattice_period(model: str, E: float, nu: float) -> float:
     spacings, partial volumes), not the continuum lambda + 2 mu. PMB: W = 1/4 sum c w s^2 |X|
     V, s = eps cos^2 -> M = 1/2 sum c w cos^4 |X| V. LPS (2D): theta = eps on the square
     lattice, e^d = eps |X| (cos^2 - 1/2) -> M = kappa + (8 mu/m) sum w |X|^2 (cos^2 - 1/2)^2 V.
-    Both continuum limits are lambda + 2 mu; the lattice's are 11.6 % and 1.8 % stiffer."""
+    Bond energy (elastic): below. All three continuum limits are lambda + 2 mu (bond energy's
+    with nu = 1/4, the central-force solid it is); the lattice's are 11.6 %, 1.8 % and
+    3.9 % stiffer."""
     import numpy as np
 
     from hpcmpm.pd import moduli
@@ -61,16 +63,22 @@ def lattice_period(model: str, E: float, nu: float) -> float:
     if model == "pmb":
         c = moduli.pmb_micromodulus(2, kappa, 2.015, "constant")
         M = 0.5 * np.sum(c * w * cos2 ** 2 * r)
+    elif model == "bond_energy":
+        # psi = beta w (mu + lambda/2) s^2 per half-bond (F X = Y under a uniform strain),
+        # beta = d^2 kappa / ((2 mu + lambda) sum w V): M = 4 kappa sum w cos^4 / sum w.
+        M = 4 * kappa * np.sum(w * cos2 ** 2) / np.sum(w)
     else:
         m = np.sum(w * r * r)
         M = kappa + 8 * mu / m * np.sum(w * r * r * (cos2 - 0.5) ** 2)
     return 4 * L / np.sqrt(M)        # rho = 1
 
 
-@pytest.mark.parametrize("model, E, nu", [("pmb", 100 / 1.2, 0.25), ("lps", 100.0, 0.0)])
+@pytest.mark.parametrize("model, E, nu", [("pmb", 100 / 1.2, 0.25), ("lps", 100.0, 0.0),
+                                          ("bond_energy", 100 / 1.2, 0.25)])
 def test_clamp_on_bond_models(model, E, nu):
-    """PMB and LPS bars on the grid, periodic across (uniaxial strain: lambda + 2 mu = 100,
-    so the continuum period is 10 again), fixed at the sticky end. With the clamp (the
+    """PMB, LPS and (elastic) bond-energy bars on the grid, periodic across (uniaxial
+    strain: lambda + 2 mu = 100, so the continuum period is 10 again), fixed at the sticky
+    end. With the clamp (the
     default) the period converges at second order or faster to the period of the discrete
     PD solid (`lattice_period`); without it the fixed end's cut families add a compliant
     layer and the error is first order."""
@@ -88,10 +96,12 @@ def test_clamp_on_bond_models(model, E, nu):
     cut = [error(c, "none") for c in (25, 50)]
     print(f"{model} bar, lattice period {ref:.5f}: errors with the clamp {clamped}, "
           f"without {cut}")
-    # Measured: PMB 4.5e-4, 8.4e-5 (8.9e-6 at 100 cells); LPS 2.7e-4, 3.6e-5 (6.4e-6).
+    # Measured: PMB 4.5e-4, 8.4e-5 (8.9e-6 at 100 cells); LPS 2.7e-4, 3.6e-5 (6.4e-6);
+    # bond energy 7.0e-4, 1.66e-4 (3.86e-5).
     # Halving dx must cut the error by more than 2^1.5 (second order with margin).
     assert clamped[0] < 1e-3
     assert clamped[1] < clamped[0] / 2 ** 1.5
-    # Measured: PMB 3.8 %, 1.9 %; LPS 1.6 %, 0.78 %: first order, 10x the clamped error.
+    # Measured: PMB 3.8 %, 1.9 %; LPS 1.6 %, 0.78 %; bond energy 3.9 %, 1.9 % (0.97 %):
+    # first order, 10x the clamped error.
     assert cut[0] > 10 * clamped[0] and cut[1] > 10 * clamped[1]
     assert cut[1] > cut[0] / 2 ** 1.5
