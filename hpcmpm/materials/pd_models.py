@@ -85,4 +85,4 @@ def make_chapter5_model(material, s0: float, c_dt: float):
     from ..pd.viscoelastic_lps import ViscoelasticLPS
 
     return ViscoelasticLPS(material.bulk, material.mu, prm["relaxation_time"], prm["memory"],
-                           s0, c_dt)
+                           s0, c_dt, material.clamp_faces, material.clamp_array())

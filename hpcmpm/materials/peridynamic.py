@@ -21,10 +21,9 @@ micromodulus of the same bulk modulus).
 ``clamp`` (not in 003): an integral-based body next to a sticky domain wall is bonded to the
 mirror image of its family there (hpcmpm/pd/clamp.py, as the SPB coupling's clamp), so the
 wall holds it as a clamped end and not only through the grid nodes. "auto" (the default)
-turns it on for ``integration = "grid"`` with ``model = "correspondence"``, ``"pmb"``,
-``"lps"`` or ``"bond_energy"`` and leaves it off elsewhere; "sticky_walls" asks for it (an
-error where it is not implemented: viscoelastic_lps, whose ghost bonds would need their own
-Maxwell history, and the off-grid integrator); "none" turns it off. On the axial bar
+turns it on for every ``model`` with ``integration = "grid"`` and leaves it off for the
+off-grid integrator; "sticky_walls" asks for it (an error off the grid, where the walls act
+per particle); "none" turns it off. On the axial bar
 (inputs/ibmpm_bar_2d.toml) it takes the correspondence period error from first order
 (1.15 % / 0.60 % at 25 / 50 cells) to second (0.11 % / 0.022 %): the wall cut the families
 of the fixed end.
@@ -47,8 +46,6 @@ from .base import ElasticMaterial, Material
 from .params import YOUNG, Param, choice, resolve_params
 from .pd_models import EXTRA_PARAMETERS, check_chapter5
 
-# The models with the clamp's ghost bonds (hpcmpm/pd/clamp.py), on the grid.
-CLAMP_MODELS = ("correspondence", "pmb", "lps", "bond_energy")
 
 
 def _point(x) -> str:
@@ -107,8 +104,8 @@ class Peridynamic(Material):
         "skin": Param(0.0, math.inf, False, 1.0, doc="PD halo skin in particle spacings"),
         "clamp": choice(("auto", "sticky_walls", "none"), "auto",
                         "mirror-image bonds at sticky domain walls (hpcmpm/pd/clamp.py); "
-                        "auto: on for integral-based correspondence, pmb and lps, off "
-                        "elsewhere"),
+                        "auto: on for integral-based bodies (integration = grid), off "
+                        "for integration = pd"),
         # Models of 003 ch. 5: materials/pd_models.py.
         **EXTRA_PARAMETERS,
         "precracks": Param(-math.inf, math.inf, False, None, check=_precracks,
@@ -140,8 +137,9 @@ class Peridynamic(Material):
 
     @staticmethod
     def clamp_supported(prm) -> bool:
-        """Where the clamp's ghost bonds are implemented (clamp.py)."""
-        return prm["model"] in CLAMP_MODELS and prm["integration"] == "grid"
+        """Where the clamp's ghost bonds are implemented (clamp.py): every model on the grid
+        (off it, the walls act on each particle)."""
+        return prm["integration"] == "grid"
 
     @classmethod
     def scene_problems(cls, spec, scene) -> list[str]:
@@ -172,10 +170,9 @@ class Peridynamic(Material):
                 out.append(f"precracks[{k}]: outside the domain (lower {_point(lo)}, "
                            f"upper {_point(hi)})")
         if prm["clamp"] == "sticky_walls" and not cls.clamp_supported(prm):
-            out.append(f"clamp: 'sticky_walls' is implemented for model = "
-                       f"{' | '.join(map(repr, CLAMP_MODELS))} with integration = 'grid' "
-                       f"only (this body: model = {prm['model']!r}, "
-                       f"integration = {prm['integration']!r}); use 'auto' or 'none'")
+            out.append(f"clamp: 'sticky_walls' needs integration = 'grid' (off the grid the "
+                       f"walls act on each particle; this body: integration = "
+                       f"{prm['integration']!r}); use 'auto' or 'none'")
         if prm["model"] == "correspondence":
             names = [m.name for m in scene.materials]
             other = prm["stress_material"]
@@ -209,13 +206,16 @@ class Peridynamic(Material):
                      if b.material == self.spec.name]
             self.clamp_faces = faces_within_reach(sticky_faces(scene), boxes,
                                                   self.family_radius())
+            # The state of each clamped particle's bond to its own image (bond plasticity,
+            # Maxwell history): particle fields, as the bond states are the bonds'.
+            own = None
             if prm["model"] == "bond_energy" and prm["plastic_yield"] < math.inf:
-                from ..pd.bond_energy import self_mirror_field_names
-
-                # The plastic stretch of each clamped particle's bond to its own image.
+                from ..pd.bond_energy import self_mirror_field_names as own
+            elif prm["model"] == "viscoelastic_lps":
+                from ..pd.viscoelastic_lps import ghost_self_names as own
+            if own is not None:
                 self.fields = {**type(self).fields, **{
-                    f"pd_{k}": FieldSpec(SCALAR)
-                    for k in self_mirror_field_names(len(self.clamp_faces))}}
+                    f"pd_{k}": FieldSpec(SCALAR) for k in own(len(self.clamp_faces))}}
 
     def clamp_array(self) -> np.ndarray:
         """The kernels' clamp parameters (clamp.clamp_parameters); unused without faces."""

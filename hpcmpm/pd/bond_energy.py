@@ -67,8 +67,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import (NO_CLAMP, NO_FACES, clamp_reach, ghost_bond, ghost_scratch, ghost_source,
-                    ghost_stretch_sums, ghost_weight, near_a_face)
+from .clamp import (NO_CLAMP, NO_FACES, clamp_reach, ghost_at, ghost_scratch, ghost_stretch_sums,
+                    near_a_face)
 from .correspondence import correspondence_kinematics
 from .families import full_family_sum
 from .geometry import bond_vectors, norm3
@@ -284,11 +284,7 @@ def bond_energy_clamp_terms(x, x0, vol, offsets, slot, status, F, active, eiso, 
             if abs(x0[p, axis] - plane) >= reach:
                 continue
             for k in range(offsets[p] - 1, offsets[p + 1]):
-                q = ghost_source(offsets, status, slot, p, k)
-                if q < 0:
-                    continue
-                ghost_bond(x, x0, p, q, axis, plane, dim, Y, X)
-                w = ghost_weight(X, clamp)
+                q, w = ghost_at(x, x0, offsets, slot, status, p, k, axis, plane, clamp, Y, X)
                 if w == 0.0:
                     continue
                 xl = norm3(X[0], X[1], X[2])

@@ -41,8 +41,15 @@ particle field). A clamped bond-energy body is the continued body exactly under
 displacements that depend on the distance from the wall only, and its plastic return under
 any displacement (the return reads no F).
 
-Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based correspondence, PMB,
-LPS and bond-energy bodies (``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
+The viscoelastic LPS (viscoelastic_lps.py) is linearized about the lengths of the last step,
+so every length in a ghost's sums is history: each ghost bond keeps its reference length and
+stored isotropic and deviatoric forces, and for the ghost's own m and theta (summed over the
+image of its source's family, as LPS's) the previous lengths of that family's bonds (the
+images of the source's bonds and of its ghost bonds; under the odd extension they are not
+the source bonds' lengths). A clamped viscoelastic body follows the continued body exactly
+under any motion.
+
+Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based bodies of every model (``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
 key, with the walls its bodies start within reach of: `faces_within_reach`). The kernels
 take the clamp as ``clamp_parameters``: the horizon, the particle spacing, the influence
 function and whether partial volumes are on, so that a ghost's weight follows the rule its
@@ -134,6 +141,18 @@ def ghost_source(offsets, status, slot, p, k):
     if status[k] == 0 or slot[k] < 0:
         return -1
     return slot[k]
+
+
+@njit(cache=True, error_model="numpy")
+def ghost_at(x, x0, offsets, slot, status, p, k, axis, plane, clamp, Y, X):
+    """The ghost of p with source k (`ghost_source`) across the plane x_axis = plane: its
+    Y, X into the scratch (`ghost_bond`) and (source, weight w' of `ghost_weight`); weight 0
+    where there is none (source broken or out of the halo, or beyond the family radius)."""
+    q = ghost_source(offsets, status, slot, p, k)
+    if q < 0:
+        return q, 0.0
+    ghost_bond(x, x0, p, q, axis, plane, x.shape[1], Y, X)
+    return q, ghost_weight(X, clamp)
 
 
 @njit(cache=True, error_model="numpy")

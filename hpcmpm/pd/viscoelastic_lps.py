@@ -42,6 +42,15 @@ scripts/study_viscoelastic_lps.py), kept for comparison with the thesis.
 tau = inf reproduces the total-Lagrangian LPS up to O(eps^2) in the strain (the stored
 increments use |Y_ref| where the LPS uses |X|). Failure: the total stretch
 (|Y| - |X|)/|X| > s0 (003 eq. 4.8), tested in the first pass on both ends.
+
+The clamp at sticky walls (clamp.py; integral-based bodies): m and theta of a particle within
+reach of such a wall sum over its ghost bonds too, each ghost bond updates its own stored
+forces, and its ghost end uses the m and theta of the source's image family (``m_image``,
+``theta_image``, refreshed in the halo). Every length in those sums enters as the previous
+step's, so the clamp keeps per clamping face a ghost bond's reference length, stored forces
+and image length for each half-bond (bond states, `ghost_bond_names`) and for the particle's
+own image (particle fields, `ghost_self_names`), and the previous length of each bond's
+image (a bond state).
 """
 
 from __future__ import annotations
@@ -51,6 +60,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .clamp import NO_CLAMP, NO_FACES, ghost_at, ghost_bond, ghost_source, near_a_face
 from .geometry import bond_vectors, norm3
 from .lps import shear_coefficient
 
@@ -75,11 +85,17 @@ def ve_initial_lengths(x0, offsets, slot, n_owned, ref_len):
 
 
 @njit(cache=True, error_model="numpy")
-def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owned, m, theta):
+def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owned, m, theta,
+                  faces, clamp, ghost, m_image, theta_image):
     """Failure on the total stretch, then m_p = sum w |Y_ref|^2 V_q and the step's dilatation
-    increment theta_p = (d/m_p) sum w |Y_ref| (|Y| - |Y_ref|) V_q. Returns half-bonds broken."""
+    increment theta_p = (d/m_p) sum w |Y_ref| (|Y| - |Y_ref|) V_q. With clamping ``faces``
+    the sums take p's ghost bonds too, and m_image, theta_image[p, f] are those of p's image
+    across face f (`_ghost_sums`; ``ghost``: the clamp's per-bond state, `ghost_arrays`).
+    Returns half-bonds broken."""
     dim = x.shape[1]
     broken = 0
+    X = np.empty(3)
+    Y = np.empty(3)
     for p in range(n_owned):
         sm = 0.0
         st = 0.0
@@ -102,9 +118,133 @@ def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owne
             wv = weight[b] * vol[q]
             sm += wv * r * r
             st += wv * r * (yl - r)
+        near = faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp)
+        for fc in range(faces.shape[0]):
+            m_image[p, fc] = 0.0
+            theta_image[p, fc] = 0.0
+            if near:
+                sm, st = _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces,
+                                     clamp, ghost, m_image, theta_image, X, Y, sm, st)
         m[p] = sm
         theta[p] = dim * st / sm if sm > 0.0 else 0.0
     return broken
+
+
+# The clamp's state (clamp.py), per clamping face: each ghost bond's reference length, stored
+# isotropic and deviatoric forces and the previous length of its image (the ghost bond of the
+# partner to this particle's image); per half-bond also the previous length of the bond's own
+# image. The ghosts of half-bond partners keep theirs as bond states (`ghost_bond_names`), the
+# ghost of the particle itself as particle fields (`ghost_self_names`); the kernels take both
+# as one tuple, GHOST_PER_FACE arrays a face: the bond arrays (GHOST_QUANTITIES, then
+# IMAGE_LEN), then the self arrays (GHOST_QUANTITIES).
+GHOST_QUANTITIES = ("mirror_len", "mirror_iso", "mirror_dev", "image_mirror_len")
+MIRROR_LEN, MIRROR_ISO, MIRROR_DEV, IMAGE_MIRROR_LEN, IMAGE_LEN = range(5)
+GHOST_PER_FACE = 2 * len(GHOST_QUANTITIES) + 1
+
+
+def ghost_bond_names(n_faces: int) -> tuple[str, ...]:
+    return tuple(f"ve_{q}{f}" for f in range(n_faces)
+                 for q in (*GHOST_QUANTITIES, "image_len"))
+
+
+def ghost_self_names(n_faces: int) -> tuple[str, ...]:
+    return tuple(f"ve_self_{q}{f}" for f in range(n_faces) for q in GHOST_QUANTITIES)
+
+
+@njit(cache=True, inline="always")
+def _gget(ghost, fc, what, offsets, p, k):
+    """Quantity ``what`` of p's ghost with source k (k = offsets[p] - 1: p's own image)."""
+    if k >= offsets[p]:
+        return ghost[fc * GHOST_PER_FACE + what][k]
+    return ghost[fc * GHOST_PER_FACE + len(GHOST_QUANTITIES) + 1 + what][p]
+
+
+@njit(cache=True, inline="always")
+def _gset(ghost, fc, what, offsets, p, k, value):
+    if k >= offsets[p]:
+        ghost[fc * GHOST_PER_FACE + what][k] = value
+    else:
+        ghost[fc * GHOST_PER_FACE + len(GHOST_QUANTITIES) + 1 + what][p] = value
+
+
+@njit(cache=True, error_model="numpy")
+def _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces, clamp, ghost,
+                m_image, theta_image, X, Y, sm, st):
+    """p's ghost bonds across face fc added to its sums (sm, st), and the sums of p's image
+    p' (clamp.py): the images p'-r' of p's intact bonds (reference length |X|, current
+    Y' = R X - (u_r - u_p)) and the images p'-r of its ghost bonds p-r' (the ghost bond of
+    r to p', `clamp.ghost_bond` from r). Each enters with its previous length as the
+    linearization's reference (module docstring), which is state. Returns (sm, st)."""
+    dim = x.shape[1]
+    axis = int(faces[fc, 0])
+    plane = faces[fc, 1]
+    im_m = 0.0
+    im_t = 0.0
+    any_ghost = False
+    for k in range(offsets[p] - 1, offsets[p + 1]):
+        q, w = ghost_at(x, x0, offsets, slot, status, p, k, axis, plane, clamp, Y, X)
+        if w == 0.0:
+            continue
+        any_ghost = True
+        r = _gget(ghost, fc, MIRROR_LEN, offsets, p, k)
+        wv = w * vol[q]
+        sm += wv * r * r
+        st += wv * r * (norm3(Y[0], Y[1], Y[2]) - r)
+        ghost_bond(x, x0, q, p, axis, plane, dim, Y, X)
+        r = _gget(ghost, fc, IMAGE_MIRROR_LEN, offsets, p, k)
+        im_m += wv * r * r
+        im_t += wv * r * (norm3(Y[0], Y[1], Y[2]) - r)
+    if not any_ghost:
+        return sm, st
+    img = ghost[fc * GHOST_PER_FACE + IMAGE_LEN]
+    for b in range(offsets[p], offsets[p + 1]):
+        q = slot[b]
+        if status[b] == 0 or q < 0:
+            continue
+        r = img[b]
+        wv = weight[b] * vol[q]
+        im_m += wv * r * r
+        im_t += wv * r * (_image_length(x, x0, p, q, axis, dim) - r)
+    m_image[p, fc] = im_m
+    theta_image[p, fc] = dim * im_t / im_m if im_m > 0.0 else 0.0
+    return sm, st
+
+
+@njit(cache=True, error_model="numpy")
+def _image_length(x, x0, p, r, axis, dim):
+    """|Y'| of the image p'-r' of the bond p-r: Y' = R X - (u_r - u_p)."""
+    y2 = 0.0
+    for i in range(dim):
+        Xi = x0[r, i] - x0[p, i]
+        yi = (-Xi if i == axis else Xi) - ((x[r, i] - x0[r, i]) - (x[p, i] - x0[p, i]))
+        y2 += yi * yi
+    return math.sqrt(y2)
+
+
+@njit(cache=True, error_model="numpy")
+def ve_clamp_initial_lengths(x0, offsets, slot, status, n_owned, faces, clamp, ghost):
+    """The clamp's lengths that have none yet (set-up) start at their reference lengths:
+    |X'| for a ghost bond and for its image, |X| for the image of a bond."""
+    dim = x0.shape[1]
+    X = np.empty(3)
+    Y = np.empty(3)
+    for p in range(n_owned):
+        if not near_a_face(x0, p, faces, clamp):
+            continue
+        for fc in range(faces.shape[0]):
+            axis = int(faces[fc, 0])
+            for k in range(offsets[p] - 1, offsets[p + 1]):
+                q = ghost_source(offsets, status, slot, p, k)
+                if q < 0:
+                    continue
+                ghost_bond(x0, x0, p, q, axis, faces[fc, 1], dim, Y, X)
+                xl = norm3(X[0], X[1], X[2])
+                for what in (MIRROR_LEN, IMAGE_MIRROR_LEN):
+                    if _gget(ghost, fc, what, offsets, p, k) == 0.0:
+                        _gset(ghost, fc, what, offsets, p, k, xl)
+                if k >= offsets[p] and ghost[fc * GHOST_PER_FACE + IMAGE_LEN][k] == 0.0:
+                    ghost[fc * GHOST_PER_FACE + IMAGE_LEN][k] = _image_length(x0, x0, p, q,
+                                                                              axis, dim)
 
 
 @njit(cache=True, error_model="numpy")
@@ -117,12 +257,17 @@ def _increments(theta, m, de, r, kappa, alpha_m, dim):
 
 @njit(cache=True, error_model="numpy")
 def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, m, theta,
-              kappa, mu, decay, gain, memory_none, commit, n_owned, f):
+              kappa, mu, decay, gain, memory_none, commit, n_owned, f, faces, clamp, ghost,
+              m_image, theta_image):
     """Per-bond stored forces updated with this step's increments (module docstring), then
     f_p = sum_q (ve_iso + ve_dev) V_p V_q Y/|Y|. ``decay`` = exp(-dt/tau), ``gain`` =
-    (1 - decay)/(dt/tau); ``commit`` False leaves the state untouched (verification)."""
+    (1 - decay)/(dt/tau); ``commit`` False leaves the state untouched (verification). With
+    clamping ``faces``, p's ghost bonds too (`_ghost_forces`)."""
     dim = x.shape[1]
     alpha_m = shear_coefficient(mu, dim)
+    acc = np.empty(3)
+    X = np.empty(3)
+    Y = np.empty(3)
     for p in range(n_owned):
         f0 = 0.0
         f1 = 0.0
@@ -152,10 +297,65 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
             f0 += a * y0
             f1 += a * y1
             f2 += a * y2
+        if faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp):
+            acc[0] = f0
+            acc[1] = f1
+            acc[2] = f2
+            for fc in range(faces.shape[0]):
+                _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
+                              m, theta, m_image, theta_image, kappa, alpha_m, decay, gain,
+                              memory_none, commit, X, Y, acc)
+            f0 = acc[0]
+            f1 = acc[1]
+            f2 = acc[2]
         f[p, 0] = f0
         f[p, 1] = f1
         if dim == 3:
             f[p, 2] = f2
+
+
+@njit(cache=True, error_model="numpy")
+def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost, m, theta,
+                  m_image, theta_image, kappa, alpha_m, decay, gain, memory_none, commit, X,
+                  Y, acc):
+    """The pair forces of p's ghost bonds across face fc, added to acc: each ghost bond
+    updates its own stored forces as a real bond does, the ghost's end with the image's m
+    and theta (m_image, theta_image of its source); on ``commit`` the lengths of the step
+    become the next step's references (the ghost's, its image's and the images of p's
+    bonds)."""
+    dim = x.shape[1]
+    axis = int(faces[fc, 0])
+    plane = faces[fc, 1]
+    for k in range(offsets[p] - 1, offsets[p + 1]):
+        q, w = ghost_at(x, x0, offsets, slot, status, p, k, axis, plane, clamp, Y, X)
+        if w == 0.0:
+            continue
+        yl = norm3(Y[0], Y[1], Y[2])
+        r = _gget(ghost, fc, MIRROR_LEN, offsets, p, k)
+        de = yl - r
+        ip, dp = _increments(theta[p], m[p], de, r, kappa, alpha_m, dim)
+        iq, dq = _increments(theta_image[q, fc], m_image[q, fc], de, r, kappa, alpha_m, dim)
+        if memory_none:
+            si = w * (ip + iq)
+            sd = w * (dp + dq)
+        else:
+            si = _gget(ghost, fc, MIRROR_ISO, offsets, p, k) + w * (ip + iq)
+            sd = decay * _gget(ghost, fc, MIRROR_DEV, offsets, p, k) + gain * (w * (dp + dq))
+        a = (si + sd) * (vol[p] * vol[q]) / yl
+        for i in range(dim):
+            acc[i] += a * Y[i]
+        if commit:
+            _gset(ghost, fc, MIRROR_ISO, offsets, p, k, si)
+            _gset(ghost, fc, MIRROR_DEV, offsets, p, k, sd)
+            _gset(ghost, fc, MIRROR_LEN, offsets, p, k, yl)
+            ghost_bond(x, x0, q, p, axis, plane, dim, Y, X)
+            _gset(ghost, fc, IMAGE_MIRROR_LEN, offsets, p, k, norm3(Y[0], Y[1], Y[2]))
+    if commit:
+        img = ghost[fc * GHOST_PER_FACE + IMAGE_LEN]
+        for b in range(offsets[p], offsets[p + 1]):
+            q = slot[b]
+            if status[b] != 0 and q >= 0:
+                img[b] = _image_length(x, x0, p, q, axis, dim)
 
 
 def modulus_state(x, vol, bonds, p: int, kappa: float, mu: float) -> np.ndarray:
@@ -197,12 +397,10 @@ class ViscoelasticLPS:
     """
 
     name = "viscoelastic_lps"
-    persistent_fields: tuple[str, ...] = ()
-    halo_fields = ("m", "theta")
 
     def __init__(self, bulk: float, mu: float, relaxation_time: float = math.inf,
                  memory: str = "maxwell", critical_stretch: float = math.inf,
-                 time_step_c: float = 0.0):
+                 time_step_c: float = 0.0, clamp_faces=NO_FACES, clamp=NO_CLAMP):
         if memory not in MEMORIES:
             raise ValueError(f"memory must be one of {', '.join(MEMORIES)}, got {memory!r}")
         self.kappa = float(bulk)
@@ -212,8 +410,18 @@ class ViscoelasticLPS:
         self.s0 = float(critical_stretch)
         self.c_dt = float(time_step_c)
         self.dt = math.nan          # the step being integrated (set by the driver)
+        self.clamp_faces = np.ascontiguousarray(clamp_faces, dtype=np.float64)
+        self.clamp = np.ascontiguousarray(clamp, dtype=np.float64)
+        nf = len(self.clamp_faces)
+        self.halo_fields = ("m", "theta") + (("m_image", "theta_image") if nf else ())
+        self.ghost_bond_states = ghost_bond_names(nf)
+        # The ghost of each particle itself: particle fields, written back after each pass.
+        self.persistent_fields = ghost_self_names(nf)
+        self.mutable_fields = self.persistent_fields
         self.m = np.empty(0)
         self.theta = np.empty(0)
+        self.m_image = np.empty((0, nf))
+        self.theta_image = np.empty((0, nf))
 
     def time_step_micromodulus(self) -> float:
         return self.c_dt
@@ -226,24 +434,48 @@ class ViscoelasticLPS:
         decay = math.exp(-z)
         return decay, (-math.expm1(-z) / z if z > 0.0 else 1.0)
 
+    def _declare_state(self, bonds) -> None:
+        for name in STATE_FIELDS + self.ghost_bond_states:
+            bonds.add_state(name)
+
     def setup(self, pts) -> None:
-        b = pts.bonds
-        for name in STATE_FIELDS:
-            b.add_state(name)
+        self._declare_state(pts.bonds)
+        for name in self.persistent_fields:
+            pts.fields.setdefault(name, np.zeros(len(pts.x)))
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
         if len(self.m) != n:
             self.m = np.zeros(n)
             self.theta = np.zeros(n)
+            self.m_image = np.zeros((n, len(self.clamp_faces)))
+            self.theta_image = np.zeros((n, len(self.clamp_faces)))
+
+    def _ghost(self, pts) -> tuple:
+        """The clamp's state arrays in the kernels' order (GHOST_PER_FACE a face)."""
+        if not len(self.clamp_faces):
+            return (np.empty(0),)       # never read
+        b, nq = pts.bonds, len(GHOST_QUANTITIES)
+        bond = self.ghost_bond_states
+        own = self.persistent_fields
+        out = []
+        for f in range(len(self.clamp_faces)):
+            out += [b.state[k] for k in bond[f * (nq + 1):(f + 1) * (nq + 1)]]
+            out += [pts.fields[k] for k in own[f * nq:(f + 1) * nq]]
+        return tuple(out)
 
     def update_state(self, pts) -> int:
         b = pts.bonds
-        for name in STATE_FIELDS:      # bonds restored or arrived without the state
-            b.add_state(name)
+        self._declare_state(b)          # bonds restored or arrived without the state
         ve_initial_lengths(pts.x0, b.offsets, b.slot, pts.n_owned, b.state["ve_len"])
+        ghost = self._ghost(pts)
+        if len(self.clamp_faces):
+            ve_clamp_initial_lengths(pts.x0, b.offsets, b.slot, b.status, pts.n_owned,
+                                     self.clamp_faces, self.clamp, ghost)
         return ve_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                             b.state["ve_len"], self.s0, pts.n_owned, self.m, self.theta)
+                             b.state["ve_len"], self.s0, pts.n_owned, self.m, self.theta,
+                             self.clamp_faces, self.clamp, ghost, self.m_image,
+                             self.theta_image)
 
     def forces(self, pts, f, commit: bool = True) -> int:
         if self.memory == "maxwell" and math.isfinite(self.tau) and not self.dt > 0.0:
@@ -253,5 +485,6 @@ class ViscoelasticLPS:
         ve_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                   b.state["ve_len"], b.state["ve_iso"], b.state["ve_dev"], self.m,
                   self.theta, self.kappa, self.mu, decay, gain, self.memory == "none",
-                  commit, pts.n_owned, f)
+                  commit, pts.n_owned, f, self.clamp_faces, self.clamp, self._ghost(pts),
+                  self.m_image, self.theta_image)
         return 0

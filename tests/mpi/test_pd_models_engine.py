@@ -4,7 +4,8 @@ test_pd_engine.py): kalthoff_winkler_2d (PMB off the grid, a prescribed set movi
 particles) bitwise equal with the same broken bonds; ibmpm_wall_fracture_2d (bond_energy with
 bond plasticity, crack planes gathered over ranks, two-time integration, on the grid) within
 1e-10 with the same broken bonds. And a restart of ibmpm_cream_pie_2d (viscoelastic_lps: the
-per-bond stored forces checkpoint with the bonds) bitwise equal to the uninterrupted run."""
+per-bond stored forces checkpoint with the bonds; the pie clamped to its wall) bitwise equal
+to the uninterrupted run."""
 
 from pathlib import Path
 
@@ -60,8 +61,19 @@ def test_pd_model_scenes_match_across_rank_counts(tmp_path, scene):
 
 
 def test_viscoelastic_bond_state_restarts_bitwise(tmp_path):
+    """The pie thrown against its sticky wall from next to it, so the PD clamp holds it:
+    the per-bond stored forces and lengths, and the clamp's ghost-bond state (bond states
+    and particle fields), checkpoint; a 2-rank restart is bitwise the uninterrupted run, and
+    one with the stored forces of the particles' own ghost bonds zeroed is not."""
+    import shutil
+
+    import h5py
+
+    from hpcmpm.io import checksum as cks
+
     dt = 2e-3
-    fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}"]
+    fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}",
+             "--set", "bodies.0.center=[1.84, 0.6]"]
     full = tmp_path / "full"
     hpcmpm(2, "run", "inputs/ibmpm_cream_pie_2d.toml", "--out", str(full),
            "--end-time", str(50 * dt), *fixed)
@@ -71,12 +83,26 @@ def test_viscoelastic_bond_state_restarts_bitwise(tmp_path):
            "--end-time", str(25 * dt), *fixed)
     ckpt = latest_checkpoint(part)
     assert (part / "pd_bonds_cream" / ckpt.name).exists()
+    with h5py.File(ckpt) as h:
+        own = h["particles/pd_ve_self_mirror_iso0"][:]
+    with h5py.File(part / "pd_bonds_cream" / ckpt.name) as h:
+        ghost = h["particles/state.ve_mirror_dev0"][:]
+    assert np.count_nonzero(own) > 5 and np.count_nonzero(ghost) > 10    # the clamp acts
+    lost = tmp_path / "lost"
+    shutil.copytree(part, lost)
+    with h5py.File(lost / ckpt.name, "r+") as h:
+        dset = h["particles/pd_ve_self_mirror_iso0"]
+        dset[...] = 0.0
+        dset.attrs["checksum"] = cks.format_checksum(cks.checksum(dset[:]))
     hpcmpm(2, "restart", str(ckpt), "--end-time", str(50 * dt))
     got = last_frame(part, 50, 2)
     assert np.array_equal(got["id"], ref["id"])
     # Positions would differ if the stored forces (ve_iso, ve_dev) or lengths had been lost.
     for name in ("x", "v"):
         assert np.array_equal(got[name], ref[name]), name
+    # ... as they do when the clamp's stored forces of the particles' own images are lost.
+    hpcmpm(2, "restart", str(lost / ckpt.name), "--end-time", str(50 * dt))
+    assert not np.array_equal(last_frame(lost, 50, 2)["x"], ref["x"])
 
 
 def test_clamped_bond_plasticity_restarts_bitwise(tmp_path):

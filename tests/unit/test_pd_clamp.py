@@ -413,3 +413,69 @@ def test_clamped_bond_energy_return_follows_the_continued_body(dim):
     x0, _, _, (model, pts, _), (whole, pts2, _) = clamped_and_continued(
         dim, lambda x0: 0.01 * rng.standard_normal(x0.shape), True)
     assert_ghost_returns_match(len(x0), pts, pts.bonds, pts2, pts2.bonds)
+
+
+def viscoelastic_model(dim, clamped, memory="maxwell"):
+    """A viscoelastic LPS (moduli of no consequence here), clamped at x_0 = PLANE."""
+    from hpcmpm.pd.viscoelastic_lps import ViscoelasticLPS
+
+    faces = np.array([[0.0, PLANE]]) if clamped else NO_FACES
+    clamp = clamp_parameters(DELTA, 1.0, 0, True) if clamped else NO_CLAMP
+    model = ViscoelasticLPS(1.0, 0.7 if dim == 3 else 0.6, 0.3, memory, math.inf, 0.0, faces,
+                            clamp)
+    model.dt = 0.1
+    return model
+
+
+@pytest.mark.parametrize("dim, memory", [(2, "maxwell"), (3, "maxwell"), (2, "none")])
+def test_clamped_viscoelastic_body_follows_the_continued_body(dim, memory):
+    """Viscoelastic LPS with the clamp, over four steps of a random prescribed motion (the
+    stored forces, the linearization's reference lengths and the Maxwell decay all carry
+    history): at every step the forces of the clamped body equal those of the body with its
+    mirror image as real points, point by point, and so do m and theta, and the image's m
+    and theta those of the mirrored points. This needs the ghost bonds' own stored forces and
+    reference lengths, and the previous lengths of the image family's bonds (module
+    docstring of viscoelastic_lps.py). Tolerance 1e-12 of the largest force (measured
+    ~1e-15: the same terms in another order)."""
+    from hpcmpm.pd.integrator import PDPoints
+
+    rng = np.random.default_rng(13)
+    x0 = lattice(dim)
+    x0 = x0[x0[:, 0] < PLANE + 6]
+    n = len(x0)
+    both0, _ = continued(x0, np.zeros_like(x0))
+
+    def body(model, ref):
+        k = len(ref)
+        b = find_families(ref, np.arange(k, dtype=np.int64), k, 1.0, DELTA).bonds
+        pts = PDPoints(ref, ref.copy(), np.ones(k), np.arange(k, dtype=np.int64), k, b)
+        model.setup(pts)
+        return pts
+
+    model, whole = viscoelastic_model(dim, True, memory), viscoelastic_model(dim, False, memory)
+    pts, pts2 = body(model, x0), body(whole, both0)
+    near = x0[:, 0] - PLANE < DELTA - 0.5          # rows with a ghost bond
+    u = np.zeros_like(x0)
+    for step in range(4):
+        u = u + 0.004 * rng.standard_normal(x0.shape)
+        pts.x[:] = x0 + u
+        pts2.x[:] = both0 + np.concatenate([u, -u])
+        f, f2 = np.zeros((n, dim)), np.zeros((2 * n, dim))
+        for m_, p_, f_ in ((model, pts, f), (whole, pts2, f2)):
+            m_.update_state(p_)
+            m_.forces(p_, f_)
+        scale = np.abs(f2).max()
+        assert np.abs(f - f2[:n]).max() < 1e-12 * scale, f"step {step}"
+        np.testing.assert_allclose(model.m[:n], whole.m[:n], rtol=1e-13)
+        np.testing.assert_allclose(model.theta[:n], whole.theta[:n], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(model.m_image[:n, 0][near], whole.m[n:][near], rtol=1e-13)
+        np.testing.assert_allclose(model.theta_image[:n, 0][near], whole.theta[n:][near],
+                                   rtol=0, atol=1e-13)
+    # Without the clamp the wall rows miss their cut bonds: not the continued body.
+    cut = viscoelastic_model(dim, False, memory)
+    pts3 = body(cut, x0)
+    pts3.x[:] = x0 + u
+    f3 = np.zeros((n, dim))
+    cut.update_state(pts3)
+    cut.forces(pts3, f3)
+    assert np.abs(f3 - f2[:n])[near].max() > 1e-2 * scale

@@ -50,10 +50,8 @@ def sim_with(old: str, new: str) -> Simulation:
     ('model = "pmb"', 'model = "pmb"\npartial_volumes = 1',
      "materials[0].partial_volumes: must be true or false, got 1"),
     ('model = "pmb"', 'model = "pmb"\nclamp = "sticky_walls"',
-     "materials[0].clamp: 'sticky_walls' is implemented for model = 'correspondence' | "
-     "'pmb' | 'lps' | 'bond_energy' with integration = 'grid' only (this body: model = 'pmb', "
-     "integration = "
-     "'pd'); use 'auto' or 'none'"),
+     "materials[0].clamp: 'sticky_walls' needs integration = 'grid' (off the grid the walls "
+     "act on each particle; this body: integration = 'pd'); use 'auto' or 'none'"),
     ('model = "pmb"', 'model = "pmb"\nclamp = "yes"',
      "materials[0].clamp: unknown value 'yes'"),
 ])
