@@ -499,19 +499,14 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
                                  integer=True) or 2)
 
 
-def _check_with_material_instances(c: Checker, output: OutputSpec, materials,
-                                   materials_complete: bool, transfer, prescribed, integrator,
-                                   dim, volume_averaging) -> None:
+def _check_with_material_instances(c: Checker, materials, materials_complete: bool, transfer,
+                                   integrator, dim, volume_averaging) -> None:
     """The checks that need the materials made as the run makes them: SPB-MPM's
-    combinations, ``volume_averaging`` with a material whose J it averages, and each
-    requested output field existing in this scene's particles (the writer would skip it
-    silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
-    what the run allocates), or ``tau``, the Kirchhoff stress computed for output."""
+    combinations and ``volume_averaging`` with a material whose J it averages."""
     from .materials import make_material
     from .materials.failure import failure_scene_problems
-    from .simulation import deformation_mode, particle_field_specs
+    from .simulation import deformation_mode
     from .solvers import INTEGRATORS
-    from .state import CORE_FIELDS
 
     if transfer is None or integrator is None or not materials_complete or not dim:
         return  # a bad material or transfer is reported already; the list would mislead
@@ -538,8 +533,35 @@ def _check_with_material_instances(c: Checker, output: OutputSpec, materials,
                   "von_mises and weakly_compressible (unless it carries F, beside an F-based "
                   "material with the explicit integrator); no material of this scene carries "
                   "one")
-    valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, transfer,
-                                                          bool(prescribed))) + ["tau"]
+
+
+
+def _check_output_fields(c: Checker, scene: Scene) -> None:
+    """Each requested output field exists in this scene's particles (the writer would skip it
+    silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
+    what the run allocates, with the materials configured against the scene as the run
+    configures them: a PD clamp's state depends on the walls its bodies start near), or
+    ``tau``, the Kirchhoff stress computed for output. Runs with the materials' own checks
+    against the scene, so validation reports both kinds of problem at once."""
+    from .simulation import configured_materials, deformation_mode, particle_field_specs
+    from .solvers import INTEGRATORS
+    from .state import CORE_FIELDS
+
+    try:
+        instances = configured_materials(scene, scene.dim)
+    except Exception as exc:  # noqa: BLE001 - re-raised unless a problem explains it
+        # A material the scene checks found wrong (a missing stress material, ...) may not
+        # configure: that problem is reported already.
+        if c.problems:
+            return
+        if isinstance(exc, SceneError):
+            c.problems.extend(exc.problems)
+            return
+        raise
+    mode = deformation_mode(instances, INTEGRATORS[scene.integrator].needs_velocity_gradient)
+    valid = list(CORE_FIELDS) + list(particle_field_specs(instances, mode, scene.transfer,
+                                                          bool(scene.prescribed))) + ["tau"]
+    output = scene.output
     for i, name in enumerate(output.fields):
         if name not in valid:
             close = difflib.get_close_matches(name, valid, n=1)
@@ -853,9 +875,9 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     colliders = _colliders(c, raw, dim)
     prescribed = _prescribed(c, raw, dim)
     entries = raw.get("materials")
-    _check_with_material_instances(c, output, materials,
+    _check_with_material_instances(c, materials,
                                    isinstance(entries, list) and len(entries) == len(materials),
-                                   sim["transfer"], prescribed, sim["integrator"], sim["dim"],
+                                   sim["transfer"], sim["integrator"], sim["dim"],
                                    sim["volume_averaging"])
     if c.problems:
         raise SceneError(c.problems)
@@ -864,6 +886,7 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
                   bodies=bodies, walls=walls, colliders=colliders, prescribed=prescribed,
                   parallel=parallel, solver=solver, **sim)
     _check_materials_in_scene(c, scene)
+    _check_output_fields(c, scene)
     if c.problems:
         raise SceneError(c.problems)
     return scene
