@@ -47,7 +47,6 @@ from .params import YOUNG, Param, choice, resolve_params
 from .pd_models import EXTRA_PARAMETERS, check_chapter5
 
 
-
 def _point(x) -> str:
     return "[" + ", ".join(f"{v:g}" for v in x) + "]"
 
