@@ -143,11 +143,15 @@ GHOST_PER_FACE = 2 * len(GHOST_QUANTITIES) + 1
 
 
 def ghost_bond_names(n_faces: int) -> tuple[str, ...]:
+    """The clamp's per-bond states, face by face in the kernels' order (GHOST_QUANTITIES of
+    the ghost of the half-bond's partner, then the previous length of the bond's image)."""
     return tuple(f"ve_{q}{f}" for f in range(n_faces)
                  for q in (*GHOST_QUANTITIES, "image_len"))
 
 
 def ghost_self_names(n_faces: int) -> tuple[str, ...]:
+    """The clamp's per-particle states (``pd_<name>`` particle fields), face by face:
+    GHOST_QUANTITIES of the ghost of the particle itself."""
     return tuple(f"ve_self_{q}{f}" for f in range(n_faces) for q in GHOST_QUANTITIES)
 
 
@@ -161,6 +165,7 @@ def _gget(ghost, fc, what, offsets, p, k):
 
 @njit(cache=True, inline="always")
 def _gset(ghost, fc, what, offsets, p, k, value):
+    """Store quantity ``what`` of p's ghost with source k (as `_gget` reads it)."""
     if k >= offsets[p]:
         ghost[fc * GHOST_PER_FACE + what][k] = value
     else:
