@@ -65,6 +65,30 @@ def test_bad_input_is_one_line_with_exit_2(tmp_path, capsys, old, new, line):
     assert len(err) == 1 and err[0].startswith(f"hpcmpm: error: {path}: {line}")
 
 
+@pytest.mark.parametrize("old,new,lines", [
+    # A pre-crack outside the domain (a check against the whole scene) and a misspelt output
+    # field (checked with the materials configured against the scene): both at once.
+    ("[[0.5, 0.7], [0.5, 0.6]]", "[[0.5, 1.7], [0.5, 0.6]]",
+     ["materials[0].precracks[0]: outside the domain",
+      "output.fields[0]: no particle field 'damag' in this scene (did you mean 'damage'?"]),
+    # A correspondence model without its stress material cannot be configured: that line
+    # alone, no traceback (the output fields are not checked against a material that
+    # cannot be made).
+    ('model = "pmb"', 'model = "correspondence"',
+     ["materials[0].stress_material: missing"]),
+])
+def test_scene_problems_and_output_fields_are_reported_together(tmp_path, capsys, old, new,
+                                                                 lines):
+    path = tmp_path / "plate.toml"
+    path.write_text(PLATE.replace(old, new).replace('fields = ["damage"]',
+                                                    'fields = ["damag"]'))
+    assert cli.main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == len(lines)
+    for got, want in zip(err, lines):
+        assert got.startswith(f"hpcmpm: error: {path}: {want}")
+
+
 def test_pmb_in_3d_names_its_poisson_ratio(tmp_path, capsys):
     path = tmp_path / "cube.toml"
     path.write_text("""
