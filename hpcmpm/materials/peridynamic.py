@@ -233,12 +233,30 @@ class Peridynamic(Material):
         return half_bonds_per_particle(self.dim, self.delta / self.spacing,
                                        self.params["partial_volumes"])
 
+    def bond_state_names(self) -> tuple[str, ...]:
+        """The per-bond state arrays this material's model keeps (pd/bonds.py ``state``):
+        the bond-energy plastic stretch, the viscoelastic stored forces and lengths, and the
+        clamp's ghost-bond state of the two (after `configure`: it depends on the walls)."""
+        nf, model = len(self.clamp_faces), self.params["model"]
+        if model == "bond_energy":
+            from ..pd.bond_energy import PLASTIC_STATE, mirror_state_names
+
+            plastic = self.params["plastic_yield"] < math.inf
+            return (PLASTIC_STATE,) + (mirror_state_names(nf) if plastic else ())
+        if model == "viscoelastic_lps":
+            from ..pd.viscoelastic_lps import STATE_FIELDS, ghost_bond_names
+
+            return STATE_FIELDS + ghost_bond_names(nf)
+        return ()
+
     def side_bytes_per_particle(self) -> int:
         """The bonds of an interior particle: its half-bonds times the resident bytes of one
-        (pd/bonds.py) plus 4 B of the family search's scratch per half-bond."""
+        with the model's per-bond states (pd/bonds.py) plus 4 B of the family search's
+        scratch per half-bond."""
         from ..pd.bonds import Bonds
 
-        return self.half_bonds_per_particle() * (Bonds.empty().resident_bytes_per_bond() + 4)
+        one = Bonds.empty(state_names=self.bond_state_names()).resident_bytes_per_bond()
+        return self.half_bonds_per_particle() * (one + 4)
 
     # -- PD constants ------------------------------------------------------------------------
     def micromodulus(self) -> float:

@@ -217,3 +217,30 @@ def test_off_grid_pd_body_stops_at_a_wall(condition):
     y = sim.particles["x"][:, 1]
     # The lowest layer (at 0.025 initially) reached the floor and stopped on it.
     assert y.min() >= 0.0 and y.min() < 0.01
+
+
+@pytest.mark.parametrize("scene, sets, states", [
+    ("pd_plate_tear_2d", (), 0),                                  # PMB: no per-bond state
+    ("ibmpm_wall_fracture_2d", (), 2),        # plastic stretch + the floor clamp's ghosts
+    ("ibmpm_wall_fracture_2d", ('materials.wall.clamp="none"',), 1),
+    ("ibmpm_cream_pie_2d", (), 3),                      # the pie starts out of the wall's reach
+    ("ibmpm_cream_pie_2d", ("bodies.0.center=[1.84, 0.6]",), 3 + 5),      # clamped: + 5
+])
+def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, states):
+    """The estimate before allocation (`side_bytes_per_particle`, used by the start-up
+    memory check and the refusal above) prices a half-bond as the bonds the run then holds
+    do, per-bond states included: the models' own and the PD clamp's, which depend on the
+    walls the bodies start near (21 B core, 8 B a state, 4 B search scratch)."""
+    from hpcmpm.runner import initial_particles
+
+    sc = load_scene(f"inputs/{scene}.toml", list(sets))
+    sim = Simulation(sc, make_domain(sc))
+    initial_particles(sim)
+    sim.ensure_grouped()
+    ext = sim.extensions[0]
+    ext.prepare()
+    ext.model.dt = 1e-4                       # a rate model integrates over a step
+    ext.compute_forces(*ext._rows())         # the models declare their state on first use
+    material = ext.material
+    per_bond = material.side_bytes_per_particle() / material.half_bonds_per_particle()
+    assert per_bond == ext.bonds.resident_bytes_per_bond() + 4 == 21 + 8 * states + 4
