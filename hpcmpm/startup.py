@@ -95,13 +95,9 @@ def side_bytes(scene, body_counts) -> tuple[float, str, str]:
     peridynamic bonds, estimated from an interior family before anything is allocated) for
     ``body_counts`` particles per body. Returns (bytes, note, key) with the note and the
     scene key of the material that holds the most."""
-    from .materials import make_material
+    from .simulation import configured_materials
 
-    materials = []
-    for spec in scene.materials:
-        material = make_material(spec, scene.dim)
-        material.configure(scene)
-        materials.append(material)
+    materials = configured_materials(scene, scene.dim)
     per_material = np.zeros(len(materials))
     for body, count in zip(scene.bodies, body_counts):
         g = scene.material_index(body.material)

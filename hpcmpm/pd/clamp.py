@@ -49,7 +49,8 @@ images of the source's bonds and of its ghost bonds; under the odd extension the
 the source bonds' lengths). A clamped viscoelastic body follows the continued body exactly
 under any motion.
 
-Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based bodies of every model (``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
+Users: the SPB coupling (spb.py; ``failure.clamp``) and integral-based bodies of every model
+(``type = "peridynamic"``, ``integration = "grid"``; the material's ``clamp``
 key, with the walls its bodies start within reach of: `faces_within_reach`). The kernels
 take the clamp as ``clamp_parameters``: the horizon, the particle spacing, the influence
 function and whether partial volumes are on, so that a ghost's weight follows the rule its
@@ -223,6 +224,18 @@ def ghost_weight(X, clamp):
 
 
 @njit(cache=True, error_model="numpy")
+def image_length(x, x0, p, r, axis, dim):
+    """|Y'| of the image p'-r' of the bond p-r across a wall normal to ``axis``:
+    Y' = R X - (u_r - u_p) (the odd extension; module docstring)."""
+    y2 = 0.0
+    for i in range(dim):
+        Xi = x0[r, i] - x0[p, i]
+        yi = (-Xi if i == axis else Xi) - ((x[r, i] - x0[r, i]) - (x[p, i] - x0[p, i]))
+        y2 += yi * yi
+    return math.sqrt(y2)
+
+
+@njit(cache=True, error_model="numpy")
 def ghost_stretch_sums(x, x0, vol, offsets, slot, status, weight, p, axis, plane, clamp,
                        ghosts, X, Y, num, den):
     """The bond-stretch sums of p across the face x_axis = plane, for the dilatation of LPS
@@ -244,15 +257,12 @@ def ghost_stretch_sums(x, x0, vol, offsets, slot, status, weight, p, axis, plane
         r = slot[b]
         if status[b] == 0 or r < 0:
             continue
-        y2 = 0.0
         x2 = 0.0
         for i in range(dim):
             Xi = x0[r, i] - x0[p, i]
-            yi = (-Xi if i == axis else Xi) - ((x[r, i] - x0[r, i]) - (x[p, i] - x0[p, i]))
             x2 += Xi * Xi
-            y2 += yi * yi
         xl = math.sqrt(x2)
-        image += weight[b] * xl * (math.sqrt(y2) - xl) * vol[r]
+        image += weight[b] * xl * (image_length(x, x0, p, r, axis, dim) - xl) * vol[r]
     for g in range(ng):
         r = GQ[g]
         xl = norm3(GX[g, 0], GX[g, 1], GX[g, 2])

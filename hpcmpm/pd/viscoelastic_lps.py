@@ -60,7 +60,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES, ghost_at, ghost_bond, ghost_source, near_a_face
+from .clamp import NO_CLAMP, NO_FACES, ghost_at, ghost_bond, image_length, near_a_face
 from .geometry import bond_vectors, norm3
 from .lps import shear_coefficient
 
@@ -209,21 +209,10 @@ def _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces, clamp, 
         r = img[b]
         wv = weight[b] * vol[q]
         im_m += wv * r * r
-        im_t += wv * r * (_image_length(x, x0, p, q, axis, dim) - r)
+        im_t += wv * r * (image_length(x, x0, p, q, axis, dim) - r)
     m_image[p, fc] = im_m
     theta_image[p, fc] = dim * im_t / im_m if im_m > 0.0 else 0.0
     return sm, st
-
-
-@njit(cache=True, error_model="numpy")
-def _image_length(x, x0, p, r, axis, dim):
-    """|Y'| of the image p'-r' of the bond p-r: Y' = R X - (u_r - u_p)."""
-    y2 = 0.0
-    for i in range(dim):
-        Xi = x0[r, i] - x0[p, i]
-        yi = (-Xi if i == axis else Xi) - ((x[r, i] - x0[r, i]) - (x[p, i] - x0[p, i]))
-        y2 += yi * yi
-    return math.sqrt(y2)
 
 
 @njit(cache=True, error_model="numpy")
@@ -239,16 +228,16 @@ def ve_clamp_initial_lengths(x0, offsets, slot, status, n_owned, faces, clamp, g
         for fc in range(faces.shape[0]):
             axis = int(faces[fc, 0])
             for k in range(offsets[p] - 1, offsets[p + 1]):
-                q = ghost_source(offsets, status, slot, p, k)
+                q, _ = ghost_at(x0, x0, offsets, slot, status, p, k, axis, faces[fc, 1],
+                                clamp, Y, X)
                 if q < 0:
                     continue
-                ghost_bond(x0, x0, p, q, axis, faces[fc, 1], dim, Y, X)
                 xl = norm3(X[0], X[1], X[2])
                 for what in (MIRROR_LEN, IMAGE_MIRROR_LEN):
                     if _gget(ghost, fc, what, offsets, p, k) == 0.0:
                         _gset(ghost, fc, what, offsets, p, k, xl)
                 if k >= offsets[p] and ghost[fc * GHOST_PER_FACE + IMAGE_LEN][k] == 0.0:
-                    ghost[fc * GHOST_PER_FACE + IMAGE_LEN][k] = _image_length(x0, x0, p, q,
+                    ghost[fc * GHOST_PER_FACE + IMAGE_LEN][k] = image_length(x0, x0, p, q,
                                                                               axis, dim)
 
 
@@ -360,7 +349,7 @@ def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
         for b in range(offsets[p], offsets[p + 1]):
             q = slot[b]
             if status[b] != 0 and q >= 0:
-                img[b] = _image_length(x, x0, p, q, axis, dim)
+                img[b] = image_length(x, x0, p, q, axis, dim)
 
 
 def modulus_state(x, vol, bonds, p: int, kappa: float, mu: float) -> np.ndarray:
