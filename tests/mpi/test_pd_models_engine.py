@@ -60,49 +60,62 @@ def test_pd_model_scenes_match_across_rank_counts(tmp_path, scene):
         assert np.array_equal(got["damage"] > 0, ref["damage"] > 0)
 
 
-def test_viscoelastic_bond_state_restarts_bitwise(tmp_path):
-    """The pie thrown against its sticky wall from next to it, so the PD clamp holds it:
-    the per-bond stored forces and lengths, and the clamp's ghost-bond state (bond states
-    and particle fields), checkpoint; a 2-rank restart is bitwise the uninterrupted run, and
-    one with the stored forces of the particles' own ghost bonds zeroed is not."""
+def restart_reads_the_state(tmp_path, scene, sets, dt, field, value, state_check):
+    """2 ranks, 50 steps of ``scene`` with ``sets`` (the reference), and 25 steps with a
+    checkpoint; ``state_check(checkpoint)`` looks at it; then the restart to step 50 must be
+    bitwise the reference, and a restart from a copy of the checkpoint whose particle field
+    ``field`` is set to ``value`` (its checksum made to match) must not. Returns the
+    reference frame."""
     import shutil
 
     import h5py
 
     from hpcmpm.io import checksum as cks
 
-    dt = 2e-3
-    fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}",
-             "--set", "bodies.0.center=[1.84, 0.6]"]
+    fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}", *sets]
     full = tmp_path / "full"
-    hpcmpm(2, "run", "inputs/ibmpm_cream_pie_2d.toml", "--out", str(full),
-           "--end-time", str(50 * dt), *fixed)
+    hpcmpm(2, "run", scene, "--out", str(full), "--end-time", str(50 * dt), *fixed)
     ref = last_frame(full, 50, 2)
     part = tmp_path / "part"
-    hpcmpm(2, "run", "inputs/ibmpm_cream_pie_2d.toml", "--out", str(part),
-           "--end-time", str(25 * dt), *fixed)
+    hpcmpm(2, "run", scene, "--out", str(part), "--end-time", str(25 * dt), *fixed)
     ckpt = latest_checkpoint(part)
-    assert (part / "pd_bonds_cream" / ckpt.name).exists()
-    with h5py.File(ckpt) as h:
-        own = h["particles/pd_ve_self_mirror_iso0"][:]
-    with h5py.File(part / "pd_bonds_cream" / ckpt.name) as h:
-        ghost = h["particles/state.ve_mirror_dev0"][:]
-    assert np.count_nonzero(own) > 5 and np.count_nonzero(ghost) > 10    # the clamp acts
-    lost = tmp_path / "lost"
-    shutil.copytree(part, lost)
-    with h5py.File(lost / ckpt.name, "r+") as h:
-        dset = h["particles/pd_ve_self_mirror_iso0"]
-        dset[...] = 0.0
+    state_check(ckpt)
+    altered = tmp_path / "altered"
+    shutil.copytree(part, altered)
+    with h5py.File(altered / ckpt.name, "r+") as h:
+        dset = h[f"particles/{field}"]
+        dset[...] = value
         dset.attrs["checksum"] = cks.format_checksum(cks.checksum(dset[:]))
     hpcmpm(2, "restart", str(ckpt), "--end-time", str(50 * dt))
     got = last_frame(part, 50, 2)
     assert np.array_equal(got["id"], ref["id"])
-    # Positions would differ if the stored forces (ve_iso, ve_dev) or lengths had been lost.
     for name in ("x", "v"):
         assert np.array_equal(got[name], ref[name]), name
-    # ... as they do when the clamp's stored forces of the particles' own images are lost.
-    hpcmpm(2, "restart", str(lost / ckpt.name), "--end-time", str(50 * dt))
-    assert not np.array_equal(last_frame(lost, 50, 2)["x"], ref["x"])
+    hpcmpm(2, "restart", str(altered / ckpt.name), "--end-time", str(50 * dt))
+    assert not np.array_equal(last_frame(altered, 50, 2)["x"], ref["x"])
+    return ref
+
+
+def test_viscoelastic_bond_state_restarts_bitwise(tmp_path):
+    """The pie thrown against its sticky wall from next to it, so the PD clamp holds it:
+    the per-bond stored forces and lengths, and the clamp's ghost-bond state (bond states
+    and particle fields), checkpoint; a 2-rank restart is bitwise the uninterrupted run
+    (positions would differ if the stored forces or lengths had been lost), and one with the
+    stored forces of the particles' own ghost bonds zeroed is not."""
+    import h5py
+
+    def check(ckpt):
+        bonds = ckpt.parent / "pd_bonds_cream" / ckpt.name
+        assert bonds.exists()
+        with h5py.File(ckpt) as h:
+            own = h["particles/pd_ve_self_mirror_iso0"][:]
+        with h5py.File(bonds) as h:
+            ghost = h["particles/state.ve_mirror_dev0"][:]
+        assert np.count_nonzero(own) > 5 and np.count_nonzero(ghost) > 10    # the clamp acts
+
+    restart_reads_the_state(tmp_path, "inputs/ibmpm_cream_pie_2d.toml",
+                            ["--set", "bodies.0.center=[1.84, 0.6]"], 2e-3,
+                            "pd_ve_self_mirror_iso0", 0.0, check)
 
 
 def test_clamped_bond_plasticity_restarts_bitwise(tmp_path):
@@ -116,48 +129,31 @@ def test_clamped_bond_plasticity_restarts_bitwise(tmp_path):
     Zeroing them would not show it: the scene is perfectly plastic, and a bond that keeps
     flowing returns to the yield surface at e_p = e_dev -+ sqrt(2 psi_p) |X|/k whatever its
     old e_p (the corrected eq. 5.11), so a flowing bond's history is erased every step."""
-    import shutil
-
     import h5py
-
-    from hpcmpm.io import checksum as cks
 
     dt = 6e-5
     # The wall made a low slab across the floor, so the ranks' cut (along x) runs through
     # the clamped rows: ghost bonds whose source is a halo point yield.
-    fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}",
-             "--set", "bodies.0.velocity=[2.0, 0.0]", "--set", "bodies.0.lower=[0.1, 0.0]",
-             "--set", "bodies.0.upper=[0.9, 0.06]"]
+    sets = ["--set", "bodies.0.velocity=[2.0, 0.0]", "--set", "bodies.0.lower=[0.1, 0.0]",
+            "--set", "bodies.0.upper=[0.9, 0.06]"]
     scene = "inputs/ibmpm_wall_fracture_2d.toml"
-    full = tmp_path / "full"
-    hpcmpm(2, "run", scene, "--out", str(full), "--end-time", str(50 * dt), *fixed)
-    ref = last_frame(full, 50, 2)
-    part = tmp_path / "part"
-    hpcmpm(2, "run", scene, "--out", str(part), "--end-time", str(25 * dt), *fixed)
-    ckpt = latest_checkpoint(part)
-    with h5py.File(ckpt) as h:
-        own = h["particles/pd_self_mirror_plastic_stretch0"][:]
-    with h5py.File(part / "pd_bonds_wall" / ckpt.name) as h:
-        mirror = h["particles/state.mirror_plastic_stretch0"][:]
-    assert np.count_nonzero(own) > 10 and np.count_nonzero(mirror) > 100   # they yielded
-    lost = tmp_path / "lost"
-    shutil.copytree(part, lost)
-    with h5py.File(lost / ckpt.name, "r+") as h:
-        dset = h["particles/pd_self_mirror_plastic_stretch0"]
-        dset[...] = 0.5         # a plastic stretch beyond every bond's current stretch
-        dset.attrs["checksum"] = cks.format_checksum(cks.checksum(dset[:]))
-    hpcmpm(2, "restart", str(ckpt), "--end-time", str(50 * dt))
-    got = last_frame(part, 50, 2)
-    assert np.array_equal(got["id"], ref["id"])
-    for name in ("x", "v"):
-        assert np.array_equal(got[name], ref[name]), name
+
+    def check(ckpt):
+        with h5py.File(ckpt) as h:
+            own = h["particles/pd_self_mirror_plastic_stretch0"][:]
+        with h5py.File(ckpt.parent / "pd_bonds_wall" / ckpt.name) as h:
+            mirror = h["particles/state.mirror_plastic_stretch0"][:]
+        assert np.count_nonzero(own) > 10 and np.count_nonzero(mirror) > 100   # they yielded
+
+    # 0.5: a plastic stretch beyond every bond's current stretch.
+    ref = restart_reads_the_state(tmp_path, scene, sets, dt,
+                                  "pd_self_mirror_plastic_stretch0", 0.5, check)
     # One rank: on two the ghost bonds by the cut read their sources' image mean stretch
     # from the halo.
     one = tmp_path / "one"
-    hpcmpm(1, "run", scene, "--out", str(one), "--end-time", str(50 * dt), *fixed)
+    hpcmpm(1, "run", scene, "--out", str(one), "--end-time", str(50 * dt),
+           "--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}", *sets)
     single = last_frame(one, 50, 1)
     for name in ("x", "v"):
         err = np.abs(single[name] - ref[name]).max() / np.abs(ref[name]).max()
         assert err < 1e-10, f"1 against 2 ranks: {name} differs by {err:.2e}"  # grid round-off
-    hpcmpm(2, "restart", str(lost / ckpt.name), "--end-time", str(50 * dt))
-    assert not np.array_equal(last_frame(lost, 50, 2)["x"], ref["x"])
