@@ -26,11 +26,18 @@ J2 = ('type = "j2"\nE = 100.0\nnu = 0.3\n'
       'hardening = { type = "johnson_cook", A = 4.0, B = 2.0 }')   # deformation mode "L"
 
 
-def scene_text(dim, model, kernel):
+def scene_text(dim, model, kernel, wall):
+    """An SPB box and a plain MPM box side by side, sharing grid nodes; with ``wall`` both
+    rest their lower y side one cell above a sticky floor, whose nodes take part of the
+    correction."""
     lo, hi = ", ".join(["0.0"] * dim), ", ".join(["1.0"] * dim)
-    a_lo, a_hi = ", ".join(["0.3"] * dim), ", ".join(["0.5"] + ["0.7"] * (dim - 1))
-    b_lo, b_hi = ", ".join(["0.52"] + ["0.3"] * (dim - 1)), ", ".join(["0.7"] * dim)
+    y = 0.25 if wall else 0.0       # how far the boxes sit below the middle
+
+    def corner(first, rest):
+        return ", ".join([first, f"{rest - y:g}"] + [f"{rest:g}"] * (dim - 2))
+
     spin = "2.0" if dim == 2 else "[0.5, 2.0, -1.0]"
+    walls = '[walls]\ny_lower = { condition = "sticky" }' if wall else ""
     return f"""
 [simulation]
 dim = {dim}
@@ -51,16 +58,17 @@ density = 2.0
 [[bodies]]
 material = "pd"
 shape = "box"
-lower = [{a_lo}]
-upper = [{a_hi}]
+lower = [{corner("0.3", 0.3)}]
+upper = [{corner("0.5", 0.7)}]
 velocity = [{", ".join(["0.3"] + ["-0.1"] * (dim - 1))}]
 angular_velocity = {spin}
 [[bodies]]
 material = "mpm"
 shape = "box"
-lower = [{b_lo}]
-upper = [{b_hi}]
+lower = [{corner("0.52", 0.3)}]
+upper = [{corner("0.7", 0.7)}]
 velocity = [{", ".join(["-0.2"] + ["0.1"] * (dim - 1))}]
+{walls}
 """
 
 
@@ -112,16 +120,39 @@ def expected_dC(sim, xn, dvel, kernel):
     return out
 
 
-@pytest.mark.parametrize("dim,model,kernel", [
-    (2, ELASTIC, "quadratic"), (2, ELASTIC, "cubic"), (3, ELASTIC, "quadratic"),
-    (2, J2, "quadratic"), (3, J2, "cubic"),
-], ids=["2d-F-quadratic", "2d-F-cubic", "3d-F-quadratic", "2d-L-quadratic", "3d-L-cubic"])
-def test_retransfer_follows_its_definition(dim, model, kernel):
+def expected_gather(sim, xn, field, kernel):
+    """sum_i w_ip field_i for every point (weights at the points)."""
+    grid = sim.grid
+    out = np.zeros_like(xn)
+    for node, w, _ in stencil(xn, sim, kernel):
+        out += w[:, None] * field[tuple((node - np.asarray(grid.origin)).T)]
+    return out
+
+
+def stencil_holds(sim, xn, mask, kernel):
+    """Whether a node of each point's stencil is in ``mask`` (the block's nodes)."""
+    out = np.zeros(len(xn), bool)
+    for node, _, _ in stencil(xn, sim, kernel):
+        out |= mask[tuple((node - np.asarray(sim.grid.origin)).T)]
+    return out
+
+
+@pytest.mark.parametrize("dim,model,kernel,wall", [
+    (2, ELASTIC, "quadratic", False), (2, ELASTIC, "cubic", False),
+    (3, ELASTIC, "quadratic", False), (2, J2, "quadratic", False), (3, J2, "cubic", False),
+    (2, ELASTIC, "quadratic", True), (3, J2, "cubic", True),
+], ids=["2d-F-quadratic", "2d-F-cubic", "3d-F-quadratic", "2d-L-quadratic", "3d-L-cubic",
+        "2d-F-quadratic-wall", "3d-L-cubic-wall"])
+def test_retransfer_follows_its_definition(dim, model, kernel, wall):
     """Four steps, each re-transfer checked against the module docstring's sums: grid
-    correction, C, and F (mode "F") or L (mode "L") of every particle, MPM and PD. Each
-    expected value is a sum of at most 64 products of the same inputs in another order, so
-    the tolerance is 1e-12 of its largest entry (measured: grid 1.4e-14, C 5.3e-15)."""
-    sc = parse_scene(scene_text(dim, model, kernel), "<retransfer>")
+    correction, C, and F (mode "F") or L (mode "L") of every particle, MPM and PD. With a
+    sticky floor: the floor takes r_i from the corrected velocity; every particle gets
+    sum_i w r_i (MPM particles and PD particles away from the floor: none of theirs), and a
+    PD particle whose stencil holds such a node drops its own dv and takes the corrected
+    grid velocity's increment sum_i w dv_i instead. Each expected value is a sum of at most
+    64 products of the same inputs in another order, so the tolerance is 1e-12 of its
+    largest entry (measured: grid 1.4e-14, C 5.3e-15)."""
+    sc = parse_scene(scene_text(dim, model, kernel, wall), "<retransfer>")
     sim = Simulation(sc, make_domain(sc, Communicator()))
     initial_particles(sim)
     ext = sim.extensions[0]
@@ -131,7 +162,7 @@ def test_retransfer_follows_its_definition(dim, model, kernel):
     p = sim.particles
     rng = np.random.default_rng(7)
     original = ext._retransfer
-    checked = []
+    held, converted = [], []
 
     def checked_retransfer(sim, pd_rows, dv, dt):
         # A random part on top of the bond forces' dv (a few % of the speeds; kept
@@ -143,16 +174,31 @@ def test_retransfer_follows_its_definition(dim, model, kernel):
         xn = p["x"] - dt * p["v"]
         before = {k: p[k].copy() for k in ("x", "v", "C", "F", "L") if k in p.specs}
         original(sim, pd_rows, dv, dt)
-        grid_dv = sim.grid["spb_dvelocity"]
-        want = expected_grid_correction(sim, xn[pd_rows], p["mass"][pd_rows][:, None] * dv,
+        # The free correction: scattered at x^n, divided by the grid mass.
+        free = expected_grid_correction(sim, xn[pd_rows], p["mass"][pd_rows][:, None] * dv,
                                         kernel)
-        scale = np.abs(want).max()
+        scale = np.abs(free).max()
         assert scale > 0.01
-        assert np.abs(grid_dv - want).max() < 1e-12 * scale
-        assert ext.held == 0
-        assert np.array_equal(p["x"], before["x"])
-        assert np.array_equal(p["v"], before["v"])
-        dC = expected_dC(sim, xn, grid_dv, kernel)
+        taken = sim.grid["spb_dvelocity"]        # what the particles take, after the walls
+        r = taken - free                          # what the walls took
+        floor = np.abs(r).max(axis=-1) > 1e-12 * scale
+        assert floor.any() == wall
+        if not wall:
+            assert np.abs(r).max() < 1e-12 * scale
+        # PD particles held by the floor's nodes.
+        is_held = np.zeros(p.n, bool)
+        is_held[pd_rows] = stencil_holds(sim, xn[pd_rows], floor, kernel)
+        assert ext.held == is_held.sum()
+        shift = expected_gather(sim, xn, np.where(floor[..., None], r, 0.0), kernel)
+        shift[pd_rows[is_held[pd_rows]]] = (
+            expected_gather(sim, xn[is_held], taken, kernel) - dv[is_held[pd_rows]])
+        vscale = np.abs(before["v"]).max()
+        assert np.abs(p["v"] - (before["v"] + shift)).max() < 1e-12 * vscale
+        assert np.abs(p["x"] - (before["x"] + dt * shift)).max() < 1e-12 * vscale
+        if wall:
+            moved = np.abs(shift).max(axis=1) > 1e-12 * vscale
+            assert (moved & (p["model"] == 0)).any() and is_held.any()
+        dC = expected_dC(sim, xn, taken, kernel)
         touched = np.abs(dC).max(axis=(1, 2)) > 0.0
         # Both materials' particles (MPM and PD) take the correction.
         assert touched[p["model"] == 0].any() and touched[p["model"] == 1].any()
@@ -166,11 +212,14 @@ def test_retransfer_follows_its_definition(dim, model, kernel):
             eye = np.eye(dim)
             F_new = (eye + dt * C_new) @ np.linalg.solve(eye + dt * before["C"], before["F"])
             assert np.abs(p["F"] - F_new).max() < 1e-12 * dt * gscale
-        checked.append(len(pd_rows))
+        held.append(ext.held)
+        converted.append(len(pd_rows))
 
     ext._retransfer = checked_retransfer
     steps = 4
     for _ in range(steps):
         sim.step(sim.stable_dt())
-    # Every step re-transfers; every particle of the SPB body became PD at the first.
-    assert len(checked) == steps and checked[0] == np.sum(p["model"] == 1)
+    # Every step re-transfers; the SPB box turned PD at the first, the other box is MPM.
+    assert len(held) == steps and converted == [np.sum(p["model"] == 1)] * steps
+    assert 0 < converted[0] < p.n
+    print(f"held PD particles per step: {held}")
