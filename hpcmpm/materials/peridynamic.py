@@ -133,6 +133,7 @@ class Peridynamic(Material):
         self.spacing = math.nan
         self.delta = math.nan
         self.clamp_faces = NO_FACES
+        self.ghost_fraction = 0.0       # of the particles within reach of a clamped face
 
     @staticmethod
     def clamp_supported(prm) -> bool:
@@ -205,16 +206,8 @@ class Peridynamic(Material):
                      if b.material == self.spec.name]
             self.clamp_faces = faces_within_reach(sticky_faces(scene), boxes,
                                                   self.family_radius())
-            # The state of each clamped particle's bond to its own image (bond plasticity,
-            # Maxwell history): particle fields, as the bond states are the bonds'.
-            own = None
-            if prm["model"] == "bond_energy" and prm["plastic_yield"] < math.inf:
-                from ..pd.bond_energy import self_mirror_field_names as own
-            elif prm["model"] == "viscoelastic_lps":
-                from ..pd.viscoelastic_lps import ghost_self_names as own
-            if own is not None:
-                self.fields = {**type(self).fields, **{
-                    f"pd_{k}": FieldSpec(SCALAR) for k in own(len(self.clamp_faces))}}
+            self.ghost_fraction = _fraction_within_reach(self.clamp_faces, boxes,
+                                                         self.family_radius())
 
     def clamp_array(self) -> np.ndarray:
         """The kernels' clamp parameters (clamp.clamp_parameters); unused without faces."""
@@ -235,28 +228,47 @@ class Peridynamic(Material):
 
     def bond_state_names(self) -> tuple[str, ...]:
         """The per-bond state arrays this material's model keeps (pd/bonds.py ``state``):
-        the bond-energy plastic stretch, the viscoelastic stored forces and lengths, and the
-        clamp's ghost-bond state of the two (after `configure`: it depends on the walls)."""
-        nf, model = len(self.clamp_faces), self.params["model"]
+        the bond-energy plastic stretch, the viscoelastic stored forces and lengths."""
+        model = self.params["model"]
         if model == "bond_energy":
-            from ..pd.bond_energy import PLASTIC_STATE, mirror_state_names
+            from ..pd.bond_energy import PLASTIC_STATE
 
-            plastic = self.params["plastic_yield"] < math.inf
-            return (PLASTIC_STATE,) + (mirror_state_names(nf) if plastic else ())
+            return (PLASTIC_STATE,)
         if model == "viscoelastic_lps":
-            from ..pd.viscoelastic_lps import STATE_FIELDS, ghost_bond_names
+            from ..pd.viscoelastic_lps import STATE_FIELDS
 
-            return STATE_FIELDS + ghost_bond_names(nf)
+            return STATE_FIELDS
         return ()
 
-    def side_bytes_per_particle(self) -> int:
+    def ghost_state_names(self) -> tuple[str, ...]:
+        """The states of the clamp's ghost store (clamp.ghost_store) for the bond-energy
+        plasticity and the viscoelastic history (after `configure`: it depends on the
+        walls)."""
+        nf, model = len(self.clamp_faces), self.params["model"]
+        if model == "bond_energy" and self.params["plastic_yield"] < math.inf:
+            from ..pd.bond_energy import mirror_state_names
+
+            return mirror_state_names(nf)
+        if model == "viscoelastic_lps":
+            from ..pd.viscoelastic_lps import ghost_state_names
+
+            return ghost_state_names(nf)
+        return ()
+
+    def side_bytes_per_particle(self) -> float:
         """The bonds of an interior particle: its half-bonds times the resident bytes of one
         with the model's per-bond states (pd/bonds.py) plus 4 B of the family search's
-        scratch per half-bond."""
+        scratch per half-bond; and the clamp's ghost store, one entry per half-bond and one
+        for the particle's own image, priced for the fraction of the bodies' bounding boxes
+        within reach of a clamped wall."""
         from ..pd.bonds import Bonds
 
+        n = self.half_bonds_per_particle()
         one = Bonds.empty(state_names=self.bond_state_names()).resident_bytes_per_bond()
-        return self.half_bonds_per_particle() * (one + 4)
+        ghost_names = self.ghost_state_names()
+        ghost = Bonds.empty(state_names=ghost_names).resident_bytes_per_bond() \
+            if ghost_names else 0
+        return n * (one + 4) + self.ghost_fraction * (n + 1) * ghost
 
     # -- PD constants ------------------------------------------------------------------------
     def micromodulus(self) -> float:
@@ -354,3 +366,19 @@ class Peridynamic(Material):
         fields), `PDExtension.strain_energy`, which the diagnostics add."""
         return 0.0
 
+
+def _fraction_within_reach(faces: np.ndarray, boxes, reach: float) -> float:
+    """The fraction of the bounding boxes' volume within ``reach`` of one of ``faces``
+    (particles fill a body evenly: the share of them with ghost bonds)."""
+    total = inside = 0.0
+    for lo, hi in boxes:
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        volume = float(np.prod(hi - lo))
+        share = 0.0
+        for axis, plane in faces:
+            a = int(axis)
+            near = min(hi[a], plane + reach) - max(lo[a], plane - reach)
+            share += max(near, 0.0) / (hi[a] - lo[a]) if hi[a] > lo[a] else 1.0
+        total += volume
+        inside += volume * min(share, 1.0)
+    return inside / total if total > 0.0 else 0.0

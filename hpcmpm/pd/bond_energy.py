@@ -55,9 +55,9 @@ The clamp at sticky walls (clamp.py; integral-based bodies): K, F and e_iso of a
 within reach of such a wall sum over its ghost bonds too, e_iso of the ghost q' is that of
 q's image family (``eiso_image``, refreshed in the halo), F_q' = I - (F_q - I) R, and each
 ghost bond returns and keeps its own plastic stretch (`bond_energy_clamp_terms`; the states
-``mirror_plastic_stretch<f>`` per half-bond and the particle fields
-``pd_self_mirror_plastic_stretch<f>``, only with psi_p finite). Ghost bonds do not break and
-do not count in the damage or the crack planes.
+``mirror_plastic_stretch<f>`` of the clamp's ghost store, clamp.ghost_store, kept only for
+the particles within reach of a clamped wall and only with psi_p finite). Ghost bonds do not
+break and do not count in the damage or the crack planes.
 """
 
 from __future__ import annotations
@@ -67,8 +67,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import (NO_CLAMP, NO_FACES, clamp_reach, ghost_at, ghost_scratch, ghost_stretch_sums,
-                    near_a_face)
+from .clamp import (NO_CLAMP, NO_FACES, clamp_reach, ghost_at, ghost_scratch, ghost_shift,
+                    ghost_store, ghost_stretch_sums, near_a_face, near_rows)
 from .correspondence import correspondence_kinematics
 from .families import full_family_sum
 from .geometry import bond_vectors, norm3
@@ -77,15 +77,9 @@ PLASTIC_STATE = "plastic_stretch"
 
 
 def mirror_state_names(n_faces: int) -> tuple[str, ...]:
-    """Per-bond states of the clamp's ghost bonds, one per clamping face: the plastic stretch
-    of the bond to the image of the half-bond's partner."""
+    """States of the clamp's ghost bonds (clamp.ghost_store), one per clamping face: the
+    plastic stretch of the bond to the image of the particle or of a half-bond's partner."""
     return tuple(f"mirror_plastic_stretch{k}" for k in range(n_faces))
-
-
-def self_mirror_field_names(n_faces: int) -> tuple[str, ...]:
-    """Per-particle states (``pd_<name>`` particle fields), one per clamping face: the
-    plastic stretch of the ghost bond to the particle's own image."""
-    return tuple(f"self_mirror_plastic_stretch{k}" for k in range(n_faces))
 
 
 def bond_energy_scale(dim: int, lam: float, mu: float, family_sum: float) -> float:
@@ -257,15 +251,15 @@ def _ghost_apply(F, q, X, axis, dim):
 
 @njit(cache=True, error_model="numpy")
 def bond_energy_clamp_terms(x, x0, vol, offsets, slot, status, F, active, eiso, eiso_image,
-                            mirror_ep, self_ep, beta, lam, mu, psi_p, commit, n_owned, faces,
+                            mirror_ep, shift, beta, lam, mu, psi_p, commit, n_owned, faces,
                             clamp, energy, f):
     """The clamp's ghost bonds (clamp.py) of the owned points within reach of a face, added
     to f (n_owned, d) as `bond_energy_forces` adds the real ones, or with ``energy`` their
     psi V_q to f[:, 0] (`bond_energy_density`). The ghost q' of q has the state of its source
     (F_q' = I - (F_q - I) R, active_q) and the mean bond stretch of q's image
     (eiso_image[q, f], `bond_iso_stretches`). A ghost bond has its own plastic stretch:
-    mirror_ep[f][k] for the ghost of bond k's partner, self_ep[f][p] for p's own image
-    (read and returned only with psi_p finite; ``commit`` as in `bond_energy_forces`)."""
+    mirror_ep[f][k + shift[p]] for p's ghost with source k (clamp.ghost_store; read and
+    returned only with psi_p finite; ``commit`` as in `bond_energy_forces`)."""
     dim = x.shape[1]
     stiff = 2.0 * mu + lam
     plastic = psi_p < np.inf
@@ -293,7 +287,7 @@ def bond_energy_clamp_terms(x, x0, vol, offsets, slot, status, F, active, eiso, 
                 wb = beta * w
                 ep = 0.0
                 if plastic:
-                    ep = self_ep[fc][p] if k < offsets[p] else mirror_ep[fc][k]
+                    ep = mirror_ep[fc][k + shift[p]]
                 if plastic and not energy:
                     e_dev = s - 0.5 * (eiso[p] + eiso_image[q, fc])
                     dep = plastic_return(wb * stiff * (e_dev - ep) / xl, wb * stiff, xl,
@@ -301,10 +295,7 @@ def bond_energy_clamp_terms(x, x0, vol, offsets, slot, status, F, active, eiso, 
                     if abs(s - ep - dep) <= abs(s - ep):     # dissipation (module docstring)
                         ep += dep
                     if commit:
-                        if k < offsets[p]:
-                            self_ep[fc][p] = ep
-                        else:
-                            mirror_ep[fc][k] = ep
+                        mirror_ep[fc][k + shift[p]] = ep
                 pb0, pb1, pb2 = _apply(F, p, X[0], X[1], X[2], dim)
                 if energy:
                     sb = s - ep
@@ -360,7 +351,6 @@ class BondEnergy:
     """
 
     name = "bond_energy"
-    mutable_fields: tuple[str, ...] = ()
 
     def __init__(self, dim: int, lam: float, mu: float, scale: float,
                  plastic_yield: float = math.inf, critical_stretch: float = math.inf,
@@ -376,13 +366,10 @@ class BondEnergy:
         self.clamp = np.ascontiguousarray(clamp, dtype=np.float64)
         nf = len(self.clamp_faces)
         self.halo_fields = ("F", "active", "eiso") + (("eiso_image",) if nf else ())
-        # The ghost bonds' plastic stretches (bond_energy_clamp_terms): per face, one per
-        # half-bond (the ghost of its partner, a bond state that migrates with the segment)
-        # and one per particle (its own image, a particle field that migrates with it).
-        self.mirror_states = mirror_state_names(nf) if self.psi_p < math.inf else ()
-        self.self_fields = self_mirror_field_names(nf) if self.psi_p < math.inf else ()
-        self.persistent_fields = self.self_fields
-        self.mutable_fields = self.self_fields
+        # The ghost bonds' plastic stretches (bond_energy_clamp_terms), per face, in the
+        # clamp's ghost store: only for the particles within reach of a clamped wall.
+        self.ghost_states = mirror_state_names(nf) if self.psi_p < math.inf else ()
+        self.persistent_fields = ()
         self.F = None
         self.resize(0)          # a rank may hold none of the body's particles
 
@@ -391,13 +378,12 @@ class BondEnergy:
 
     def _declare_state(self, bonds) -> None:
         bonds.add_state(PLASTIC_STATE)
-        for name in self.mirror_states:
-            bonds.add_state(name)
 
     def setup(self, pts) -> None:
         self._declare_state(pts.bonds)
-        for name in self.self_fields:
-            pts.fields.setdefault(name, np.zeros(len(pts.x)))
+        if self.ghost_states and pts.ghosts is None:
+            near = near_rows(pts.x0[:pts.n_owned], self.clamp_faces, self.clamp)
+            pts.ghosts = ghost_store(pts.bonds, near, self.ghost_states)
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
@@ -426,11 +412,13 @@ class BondEnergy:
         if not len(self.clamp_faces):
             return
         b = pts.bonds
-        none = (np.empty(0),)           # elastic: no ghost state (never read)
-        mirror = tuple(b.state[k] for k in self.mirror_states) or none
-        own = tuple(pts.fields[k] for k in self.self_fields) or none
+        if self.ghost_states:
+            mirror = tuple(pts.ghosts.state[k] for k in self.ghost_states)
+            shift = ghost_shift(pts.ghosts, b)
+        else:                           # elastic: no ghost state (never read)
+            mirror, shift = (np.empty(0),), np.empty(0, np.int64)
         bond_energy_clamp_terms(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, self.F,
-                                self.active, self.eiso, self.eiso_image, mirror, own,
+                                self.active, self.eiso, self.eiso_image, mirror, shift,
                                 self.beta, self.lam, self.mu, self.psi_p, commit,
                                 pts.n_owned, self.clamp_faces, self.clamp, energy, out)
 

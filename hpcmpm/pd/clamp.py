@@ -13,7 +13,8 @@ from the wall continues as the same line):
         X_q' = R X_q,   x_q' = X_q' - (x_q - X_q),   w' = beta(|X_q' - X_p|) omega(...)
     a ghost exists where |X_q' - X_p| < delta + s/2 (the PA-HHB family radius); since
     |X_q - X_p| <= |X_q' - X_p| for p and q on the same side, its source q is already in p's
-    family, so the ghosts need no search, storage or halo of their own.
+    family, so the ghosts need no search or halo of their own (only the models with history
+    keep state for them, in the ghost store below).
 
 p's shape tensor and deformation gradient sum over its ghosts too (K, N of 003 eq. 4.4-4.5),
 and each ghost bond adds to p's force the correspondence pair force of
@@ -34,10 +35,11 @@ The bond-energy model (bond_energy.py) takes F_p over the ghost bonds as corresp
 the ghost's F_q' = I - (F_q - I) R and active flag from its source, and the ghost's mean bond
 stretch summed over the image of its source's family as LPS's dilatation
 (`ghost_stretch_sums`, shared by both). With bond plasticity each ghost bond has its own
-plastic stretch, which is history, not a function of the source's: one per half-bond and
-clamping face (the ghost of the bond's partner, a bond state that migrates and checkpoints
-with the segment) and one per particle and face (the ghost of the particle itself, a
-particle field). A clamped bond-energy body is the continued body exactly under
+plastic stretch, which is history, not a function of the source's: one per clamping face
+for the ghost of each half-bond's partner and of the particle itself, in the ghost store
+(`ghost_store`: a side structure laid out as the bonds, which migrates and checkpoints with
+them, with entries only for the particles within reach of a clamped wall). A clamped
+bond-energy body is the continued body exactly under
 displacements that depend on the distance from the wall only, and its plastic return under
 any displacement (the return reads no F).
 
@@ -64,6 +66,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .bonds import Bonds
 from .families import family_radius, influence, partial_volume
 from .geometry import norm3
 
@@ -102,6 +105,42 @@ def face_names(faces: np.ndarray, scene) -> list[str]:
 
     return [FACE_NAMES[2 * int(axis) + (plane == scene.domain_hi[int(axis)])]
             for axis, plane in faces]
+
+
+def near_rows(x0: np.ndarray, faces: np.ndarray, clamp: np.ndarray) -> np.ndarray:
+    """Mask of the points ``x0`` (n, d) that start within a family radius of one of
+    ``faces``: the test of `near_a_face`, for all rows at once."""
+    near = np.zeros(len(x0), dtype=bool)
+    if len(faces):
+        reach = clamp_reach(clamp)
+        for axis, plane in faces:
+            near |= np.abs(x0[:, int(axis)] - plane) < reach
+    return near
+
+
+def ghost_store(bonds: Bonds, near: np.ndarray, state_names) -> Bonds:
+    """The history of the ghost bonds, kept only where there are ghost bonds: a side
+    structure in the layout of `Bonds` (it migrates, is realigned and checkpoints as bonds
+    do), whose segment for a row in ``near`` holds one entry per ghost source (`ghost_source`:
+    the particle's own image first, then the ghosts of its half-bonds in segment order) and
+    whose segment for any other row is empty. An entry's ``partner`` is its position in the
+    segment (0: the own image), which keeps the order through a checkpoint; the kernels find
+    p's entry for source k at ``k + ghost_shift(...)[p]``. The state arrays ``state_names``
+    start at 0."""
+    counts = np.where(near, bonds.counts() + 1, 0).astype(np.int64)
+    offsets = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    total = int(offsets[-1])
+    position = np.arange(total, dtype=np.int64) - np.repeat(offsets[:-1], counts)
+    return Bonds(offsets, position, np.zeros(total),
+                 state={k: np.zeros(total) for k in state_names})
+
+
+def ghost_shift(ghosts: Bonds, bonds: Bonds) -> np.ndarray:
+    """Per row, the shift from a ghost source index k (offsets[p] - 1 .. offsets[p + 1] - 1)
+    to its entry in the ghost store (`ghost_store`); meaningless for rows without ghosts,
+    whose entries the kernels never read (`near_a_face`)."""
+    return ghosts.offsets[:-1] + 1 - bonds.offsets[:-1]
 
 
 def faces_within_reach(faces: np.ndarray, boxes, reach: float) -> np.ndarray:

@@ -60,6 +60,7 @@ class PDExtension:
         self.skin = prm["skin"] * material.spacing
         self.halo: PDHalo | None = None       # made at the first step (the domain exists)
         self.bonds = None
+        self.ghosts = None      # the clamp's ghost-bond history (clamp.ghost_store) or None
         self.bond_ids = np.empty(0, np.int64)
         self.pts: PDPoints | None = None
         self.force = np.empty((0, sim.dim))
@@ -85,7 +86,8 @@ class PDExtension:
         halo = self.halo.build(static["x"], static)
         cat = lambda k: np.concatenate([static[k], halo[k]])  # noqa: E731
         self.pts = PDPoints(cat("x0"), cat("x"), cat("vol0"), cat("id"), stop - start,
-                            self.bonds, {k: cat(f"pd_{k}") for k in self.persistent})
+                            self.bonds, {k: cat(f"pd_{k}") for k in self.persistent},
+                            self.ghosts)
         if self.bonds is not None:
             self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
         self.model.resize(len(self.pts.x))
@@ -129,6 +131,7 @@ class PDExtension:
         self.pts.bonds = self.bonds
         self.bond_ids = p["id"][start:stop].copy()
         self.model.setup(self.pts)
+        self.ghosts = self.pts.ghosts
         for k in self.persistent:
             p[f"pd_{k}"][start:stop] = self.pts.fields[k][: stop - start]
         weighted_volume_sums(self.pts.x0, self.pts.vol, self.bonds.offsets, self.bonds.slot,
@@ -165,10 +168,14 @@ class PDExtension:
         if moved:
             local = len(ids) == len(self.bond_ids) and \
                 np.array_equal(np.sort(ids), np.sort(self.bond_ids))
+            # The ghost store's rows are the bonds' rows (clamp.ghost_store).
+            segments = [self.bonds] + ([self.ghosts] if self.ghosts is not None else [])
             if domain.min(float(local)) > 0:     # only reordered (a sort): no exchange
-                align_rows(self.bonds, self.bond_ids, ids)
+                for b in segments:
+                    align_rows(b, self.bond_ids, ids)
             else:
-                redistribute_segments(domain, self.bonds, self.bond_ids, ids)
+                for b in segments:
+                    redistribute_segments(domain, b, self.bond_ids, ids)
                 self.redistributions += 1
             self.bond_ids = ids.copy()
         x = self.sim.particles["x"][start:stop]
@@ -207,11 +214,6 @@ class PDExtension:
         if len(self.force) != n:
             self.force = np.empty((n, self.sim.dim))
         self.broken += bond_forces(self.model, self.pts, self.force, self.halo.refresh_rows(n))
-        # Per-particle state the force pass updated (the bond-energy clamp's plastic
-        # stretches) goes back to its particle field, which migrates and checkpoints.
-        p = self.sim.particles
-        for k in getattr(self.model, "mutable_fields", ()):
-            p[f"pd_{k}"][start:stop] = self.pts.fields[k][:n]
         return self.force
 
     def strain_energy(self, sim) -> float:
@@ -276,54 +278,80 @@ def bonds_folder(out_dir, material_name: str) -> Path:
     return Path(out_dir) / f"pd_bonds_{material_name}"
 
 
+def ghosts_folder(out_dir, material_name: str) -> Path:
+    """Where a PD material's clamp ghost store (clamp.ghost_store) is checkpointed."""
+    return Path(out_dir) / f"pd_ghost_bonds_{material_name}"
+
+
 class CheckpointedBonds:
     """Bonds in checkpoints (mixin of PDExtension): ``pd_bonds_<material>/ckpt_<step>.h5``
     beside the particle checkpoint, written before it (a particle checkpoint that exists has
-    its bonds), read back on any rank count and routed to the particles' new owners."""
+    its bonds), read back on any rank count and routed to the particles' new owners. The
+    clamp's ghost store, where the model keeps one, goes the same way in
+    ``pd_ghost_bonds_<material>/``."""
 
     def checkpoint_ids(self) -> np.ndarray:
         """Ids of the rows that own bond segments, in row order (SPB-MPM: its PD particles)."""
         p = self.sim.particles
         return p["id"][p["group"] == self.group].copy()
 
+    def _segment_sets(self, out_dir):
+        """(folder, segments or None) of the bonds and, with a clamp store, the ghosts."""
+        name = self.material.spec.name
+        out = [(bonds_folder(out_dir, name), self.bonds)]
+        if getattr(getattr(self, "model", None), "ghost_states", ()):
+            out.append((ghosts_folder(out_dir, name), self.ghosts))
+        return out
+
     def write_checkpoint(self, out_dir, step: int, keep: int) -> None:
         from ..io.checkpoint import write_checkpoint
 
-        b = self.bonds if self.bonds is not None else Bonds.empty(0)
-        arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
-                  "weight": b.weight, "status": b.status,
-                  **{f"state.{k}": v for k, v in b.state.items()}}
-        meta = {"step": int(step), "time": float(self.sim.time),
-                "initialized": self.bonds is not None}
-        write_checkpoint(bonds_folder(out_dir, self.material.spec.name), self.sim.domain,
-                         _HalfBondRows(self.sim.dim, arrays), meta, keep=keep)
+        for folder, segments in self._segment_sets(out_dir):
+            b = segments if segments is not None else Bonds.empty(0)
+            arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
+                      "weight": b.weight, "status": b.status,
+                      **{f"state.{k}": v for k, v in b.state.items()}}
+            meta = {"step": int(step), "time": float(self.sim.time),
+                    "initialized": segments is not None}
+            write_checkpoint(folder, self.sim.domain, _HalfBondRows(self.sim.dim, arrays),
+                             meta, keep=keep)
 
     def restore(self, particle_checkpoint) -> None:
         """Bonds of the particle checkpoint at this path (collective); the first step then
         builds the halo instead of new families."""
-        from ..io.checkpoint import read_checkpoint
-        from ..parallel.pd_halo import route_half_bonds
-
         path = Path(particle_checkpoint)
-        rows, meta = read_checkpoint(bonds_folder(path.parent, self.material.spec.name)
-                                     / path.name, self.sim.domain)
-        if not meta.get("initialized", False):
-            return
         # Rows of this material in their current order, without sorting (a sort now would
         # change a grid scene's summation order against the uninterrupted run).
         ids = self.checkpoint_ids()
-        rows = route_half_bonds(self.sim.domain, rows, ids)
-        row_of = {int(i): k for k, i in enumerate(ids)}
-        owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
-        order = np.lexsort((rows["partner"], owner_row))
-        offsets = np.zeros(len(ids) + 1, np.int64)
-        np.cumsum(np.bincount(owner_row, minlength=len(ids)), out=offsets[1:])
-        self.bonds = Bonds(offsets, rows["partner"][order], rows["weight"][order],
-                           rows["status"][order],
-                           state={k[6:]: v[order] for k, v in rows.items()
-                                  if k.startswith("state.")})
+        restored = [_read_segments(folder / path.name, self.sim.domain, ids)
+                    for folder, _ in self._segment_sets(path.parent)]
+        if restored[0] is None:
+            return
+        self.bonds = restored[0]
+        self.ghosts = restored[1] if len(restored) > 1 else None
         self.bond_ids = ids
         self.pts = None
+
+
+def _read_segments(path, domain, ids) -> Bonds | None:
+    """Half-bond rows of a checkpoint file, routed to the ranks that hold their owners and
+    ordered as the rows ``ids`` with each segment in its written order (None: the
+    checkpoint was written before the bonds were made). Collective."""
+    from ..io.checkpoint import read_checkpoint
+    from ..parallel.pd_halo import route_half_bonds
+
+    rows, meta = read_checkpoint(path, domain)
+    if not meta.get("initialized", False):
+        return None
+    rows = route_half_bonds(domain, rows, ids)
+    row_of = {int(i): k for k, i in enumerate(ids)}
+    owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
+    order = np.lexsort((rows["partner"], owner_row))
+    offsets = np.zeros(len(ids) + 1, np.int64)
+    np.cumsum(np.bincount(owner_row, minlength=len(ids)), out=offsets[1:])
+    return Bonds(offsets, rows["partner"][order], rows["weight"][order],
+                 rows["status"][order],
+                 state={k[6:]: v[order] for k, v in rows.items() if k.startswith("state.")})
 
 
 class PDBodyExtension(CheckpointedBonds, PDExtension):

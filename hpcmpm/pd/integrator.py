@@ -25,7 +25,8 @@ class PDPoints:
     x0, x : (n, d) reference and current positions; vol : (n,) volumes; ids : (n,) global ids;
     bonds : the owned points' half-bonds (slots index these rows); fields : persistent
     per-point model fields (owned + halo rows, e.g. the LPS weighted volume "m"), which move
-    and checkpoint with their particles."""
+    and checkpoint with their particles; ghosts : the clamp's ghost-bond history of the owned
+    points (clamp.ghost_store; None when the model keeps none)."""
 
     x0: np.ndarray
     x: np.ndarray
@@ -34,6 +35,7 @@ class PDPoints:
     n_owned: int
     bonds: Bonds
     fields: dict = field(default_factory=dict)
+    ghosts: Bonds | None = None
 
 
 def bond_forces(model, pts: PDPoints, force: np.ndarray, refresh_halo) -> int:

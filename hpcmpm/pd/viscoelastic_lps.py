@@ -48,9 +48,9 @@ reach of such a wall sum over its ghost bonds too, each ghost bond updates its o
 forces, and its ghost end uses the m and theta of the source's image family (``m_image``,
 ``theta_image``, refreshed in the halo). Every length in those sums enters as the previous
 step's, so the clamp keeps per clamping face a ghost bond's reference length, stored forces
-and image length for each half-bond (bond states, `ghost_bond_names`) and for the particle's
-own image (particle fields, `ghost_self_names`), and the previous length of each bond's
-image (a bond state).
+and image length for each ghost (of each partner and of the particle itself), and the
+previous length of each bond's image, in its ghost store (`ghost_state_names`,
+clamp.ghost_store: only the particles within reach of a clamped wall carry it).
 """
 
 from __future__ import annotations
@@ -60,7 +60,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import NO_CLAMP, NO_FACES, ghost_at, ghost_bond, image_length, near_a_face
+from .clamp import (NO_CLAMP, NO_FACES, ghost_at, ghost_bond, ghost_shift, ghost_store,
+                    image_length, near_a_face, near_rows)
 from .geometry import bond_vectors, norm3
 from .lps import shear_coefficient
 
@@ -86,11 +87,11 @@ def ve_initial_lengths(x0, offsets, slot, n_owned, ref_len):
 
 @njit(cache=True, error_model="numpy")
 def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owned, m, theta,
-                  faces, clamp, ghost, m_image, theta_image):
+                  faces, clamp, ghost, shift, m_image, theta_image):
     """Failure on the total stretch, then m_p = sum w |Y_ref|^2 V_q and the step's dilatation
     increment theta_p = (d/m_p) sum w |Y_ref| (|Y| - |Y_ref|) V_q. With clamping ``faces``
     the sums take p's ghost bonds too, and m_image, theta_image[p, f] are those of p's image
-    across face f (`_ghost_sums`; ``ghost``: the clamp's per-bond state, `ghost_arrays`).
+    across face f (`_ghost_sums`; ``ghost``, ``shift``: the clamp's ghost store, `_ghost`).
     Returns half-bonds broken."""
     dim = x.shape[1]
     broken = 0
@@ -124,56 +125,45 @@ def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owne
             theta_image[p, fc] = 0.0
             if near:
                 sm, st = _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces,
-                                     clamp, ghost, m_image, theta_image, X, Y, sm, st)
+                                     clamp, ghost, shift, m_image, theta_image, X, Y, sm,
+                                     st)
         m[p] = sm
         theta[p] = dim * st / sm if sm > 0.0 else 0.0
     return broken
 
 
-# The clamp's state (clamp.py), per clamping face: each ghost bond's reference length, stored
-# isotropic and deviatoric forces and the previous length of its image (the ghost bond of the
-# partner to this particle's image); per half-bond also the previous length of the bond's own
-# image. The ghosts of half-bond partners keep theirs as bond states (`ghost_bond_names`), the
-# ghost of the particle itself as particle fields (`ghost_self_names`); the kernels take both
-# as one tuple, GHOST_PER_FACE arrays a face: the bond arrays (GHOST_QUANTITIES, then
-# IMAGE_LEN), then the self arrays (GHOST_QUANTITIES).
+# The clamp's state (clamp.py) in its ghost store (clamp.ghost_store: only for the particles
+# within reach of a clamped wall), per clamping face: each ghost bond's reference length,
+# stored isotropic and deviatoric forces and the previous length of its image (the ghost bond
+# of the source to this particle's image); at a half-bond's entry also the previous length of
+# the bond's own image (IMAGE_LEN; unused at the own image's entry). The kernels take them as
+# one tuple, GHOST_PER_FACE arrays a face, and p's entry for ghost source k at k + shift[p].
 GHOST_QUANTITIES = ("mirror_len", "mirror_iso", "mirror_dev", "image_mirror_len")
 MIRROR_LEN, MIRROR_ISO, MIRROR_DEV, IMAGE_MIRROR_LEN, IMAGE_LEN = range(5)
-GHOST_PER_FACE = 2 * len(GHOST_QUANTITIES) + 1
+GHOST_PER_FACE = len(GHOST_QUANTITIES) + 1
 
 
-def ghost_bond_names(n_faces: int) -> tuple[str, ...]:
-    """The clamp's per-bond states, face by face in the kernels' order (GHOST_QUANTITIES of
-    the ghost of the half-bond's partner, then the previous length of the bond's image)."""
+def ghost_state_names(n_faces: int) -> tuple[str, ...]:
+    """The clamp's ghost-store states, face by face in the kernels' order (GHOST_QUANTITIES,
+    then the previous length of the bond's image)."""
     return tuple(f"ve_{q}{f}" for f in range(n_faces)
                  for q in (*GHOST_QUANTITIES, "image_len"))
 
 
-def ghost_self_names(n_faces: int) -> tuple[str, ...]:
-    """The clamp's per-particle states (``pd_<name>`` particle fields), face by face:
-    GHOST_QUANTITIES of the ghost of the particle itself."""
-    return tuple(f"ve_self_{q}{f}" for f in range(n_faces) for q in GHOST_QUANTITIES)
-
-
 @njit(cache=True, inline="always")
-def _gget(ghost, fc, what, offsets, p, k):
+def _gget(ghost, fc, what, shift, p, k):
     """Quantity ``what`` of p's ghost with source k (k = offsets[p] - 1: p's own image)."""
-    if k >= offsets[p]:
-        return ghost[fc * GHOST_PER_FACE + what][k]
-    return ghost[fc * GHOST_PER_FACE + len(GHOST_QUANTITIES) + 1 + what][p]
+    return ghost[fc * GHOST_PER_FACE + what][k + shift[p]]
 
 
 @njit(cache=True, inline="always")
-def _gset(ghost, fc, what, offsets, p, k, value):
+def _gset(ghost, fc, what, shift, p, k, value):
     """Store quantity ``what`` of p's ghost with source k (as `_gget` reads it)."""
-    if k >= offsets[p]:
-        ghost[fc * GHOST_PER_FACE + what][k] = value
-    else:
-        ghost[fc * GHOST_PER_FACE + len(GHOST_QUANTITIES) + 1 + what][p] = value
+    ghost[fc * GHOST_PER_FACE + what][k + shift[p]] = value
 
 
 @njit(cache=True, error_model="numpy")
-def _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces, clamp, ghost,
+def _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces, clamp, ghost, shift,
                 m_image, theta_image, X, Y, sm, st):
     """p's ghost bonds across face fc added to its sums (sm, st), and the sums of p's image
     p' (clamp.py): the images p'-r' of p's intact bonds (reference length |X|, current
@@ -191,12 +181,12 @@ def _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces, clamp, 
         if w == 0.0:
             continue
         any_ghost = True
-        r = _gget(ghost, fc, MIRROR_LEN, offsets, p, k)
+        r = _gget(ghost, fc, MIRROR_LEN, shift, p, k)
         wv = w * vol[q]
         sm += wv * r * r
         st += wv * r * (norm3(Y[0], Y[1], Y[2]) - r)
         ghost_bond(x, x0, q, p, axis, plane, dim, Y, X)
-        r = _gget(ghost, fc, IMAGE_MIRROR_LEN, offsets, p, k)
+        r = _gget(ghost, fc, IMAGE_MIRROR_LEN, shift, p, k)
         im_m += wv * r * r
         im_t += wv * r * (norm3(Y[0], Y[1], Y[2]) - r)
     if not any_ghost:
@@ -206,7 +196,7 @@ def _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces, clamp, 
         q = slot[b]
         if status[b] == 0 or q < 0:
             continue
-        r = img[b]
+        r = img[b + shift[p]]
         wv = weight[b] * vol[q]
         im_m += wv * r * r
         im_t += wv * r * (image_length(x, x0, p, q, axis, dim) - r)
@@ -216,7 +206,7 @@ def _ghost_sums(x, x0, vol, offsets, slot, status, weight, p, fc, faces, clamp, 
 
 
 @njit(cache=True, error_model="numpy")
-def ve_clamp_initial_lengths(x0, offsets, slot, status, n_owned, faces, clamp, ghost):
+def ve_clamp_initial_lengths(x0, offsets, slot, status, n_owned, faces, clamp, ghost, shift):
     """The clamp's lengths that have none yet (set-up) start at their reference lengths:
     |X'| for a ghost bond and for its image, |X| for the image of a bond."""
     dim = x0.shape[1]
@@ -234,11 +224,11 @@ def ve_clamp_initial_lengths(x0, offsets, slot, status, n_owned, faces, clamp, g
                     continue
                 xl = norm3(X[0], X[1], X[2])
                 for what in (MIRROR_LEN, IMAGE_MIRROR_LEN):
-                    if _gget(ghost, fc, what, offsets, p, k) == 0.0:
-                        _gset(ghost, fc, what, offsets, p, k, xl)
-                if k >= offsets[p] and ghost[fc * GHOST_PER_FACE + IMAGE_LEN][k] == 0.0:
-                    ghost[fc * GHOST_PER_FACE + IMAGE_LEN][k] = image_length(x0, x0, p, q,
-                                                                              axis, dim)
+                    if _gget(ghost, fc, what, shift, p, k) == 0.0:
+                        _gset(ghost, fc, what, shift, p, k, xl)
+                if k >= offsets[p] and _gget(ghost, fc, IMAGE_LEN, shift, p, k) == 0.0:
+                    _gset(ghost, fc, IMAGE_LEN, shift, p, k,
+                          image_length(x0, x0, p, q, axis, dim))
 
 
 @njit(cache=True, error_model="numpy")
@@ -252,7 +242,7 @@ def _increments(theta, m, de, r, kappa, alpha_m, dim):
 @njit(cache=True, error_model="numpy")
 def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, m, theta,
               kappa, mu, decay, gain, memory_none, commit, n_owned, f, faces, clamp, ghost,
-              m_image, theta_image):
+              shift, m_image, theta_image):
     """Per-bond stored forces updated with this step's increments (module docstring), then
     f_p = sum_q (ve_iso + ve_dev) V_p V_q Y/|Y|. ``decay`` = exp(-dt/tau), ``gain`` =
     (1 - decay)/(dt/tau); ``commit`` False leaves the state untouched (verification). With
@@ -297,6 +287,7 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
             acc[2] = f2
             for fc in range(faces.shape[0]):
                 _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
+                              shift,
                               m, theta, m_image, theta_image, kappa, alpha_m, decay, gain,
                               memory_none, commit, X, Y, acc)
             f0 = acc[0]
@@ -309,8 +300,8 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
 
 
 @njit(cache=True, error_model="numpy")
-def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost, m, theta,
-                  m_image, theta_image, kappa, alpha_m, decay, gain, memory_none, commit, X,
+def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost, shift, m,
+                  theta, m_image, theta_image, kappa, alpha_m, decay, gain, memory_none, commit, X,
                   Y, acc):
     """The pair forces of p's ghost bonds across face fc, added to acc: each ghost bond
     updates its own stored forces as a real bond does, the ghost's end with the image's m
@@ -325,7 +316,7 @@ def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
         if w == 0.0:
             continue
         yl = norm3(Y[0], Y[1], Y[2])
-        r = _gget(ghost, fc, MIRROR_LEN, offsets, p, k)
+        r = _gget(ghost, fc, MIRROR_LEN, shift, p, k)
         de = yl - r
         ip, dp = _increments(theta[p], m[p], de, r, kappa, alpha_m, dim)
         iq, dq = _increments(theta_image[q, fc], m_image[q, fc], de, r, kappa, alpha_m, dim)
@@ -333,23 +324,23 @@ def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
             si = w * (ip + iq)
             sd = w * (dp + dq)
         else:
-            si = _gget(ghost, fc, MIRROR_ISO, offsets, p, k) + w * (ip + iq)
-            sd = decay * _gget(ghost, fc, MIRROR_DEV, offsets, p, k) + gain * (w * (dp + dq))
+            si = _gget(ghost, fc, MIRROR_ISO, shift, p, k) + w * (ip + iq)
+            sd = decay * _gget(ghost, fc, MIRROR_DEV, shift, p, k) + gain * (w * (dp + dq))
         a = (si + sd) * (vol[p] * vol[q]) / yl
         for i in range(dim):
             acc[i] += a * Y[i]
         if commit:
-            _gset(ghost, fc, MIRROR_ISO, offsets, p, k, si)
-            _gset(ghost, fc, MIRROR_DEV, offsets, p, k, sd)
-            _gset(ghost, fc, MIRROR_LEN, offsets, p, k, yl)
+            _gset(ghost, fc, MIRROR_ISO, shift, p, k, si)
+            _gset(ghost, fc, MIRROR_DEV, shift, p, k, sd)
+            _gset(ghost, fc, MIRROR_LEN, shift, p, k, yl)
             ghost_bond(x, x0, q, p, axis, plane, dim, Y, X)
-            _gset(ghost, fc, IMAGE_MIRROR_LEN, offsets, p, k, norm3(Y[0], Y[1], Y[2]))
+            _gset(ghost, fc, IMAGE_MIRROR_LEN, shift, p, k, norm3(Y[0], Y[1], Y[2]))
     if commit:
         img = ghost[fc * GHOST_PER_FACE + IMAGE_LEN]
         for b in range(offsets[p], offsets[p + 1]):
             q = slot[b]
             if status[b] != 0 and q >= 0:
-                img[b] = image_length(x, x0, p, q, axis, dim)
+                img[b + shift[p]] = image_length(x, x0, p, q, axis, dim)
 
 
 def modulus_state(x, vol, bonds, p: int, kappa: float, mu: float) -> np.ndarray:
@@ -408,10 +399,9 @@ class ViscoelasticLPS:
         self.clamp = np.ascontiguousarray(clamp, dtype=np.float64)
         nf = len(self.clamp_faces)
         self.halo_fields = ("m", "theta") + (("m_image", "theta_image") if nf else ())
-        self.ghost_bond_states = ghost_bond_names(nf)
-        # The ghost of each particle itself: particle fields, written back after each pass.
-        self.persistent_fields = ghost_self_names(nf)
-        self.mutable_fields = self.persistent_fields
+        # The clamp's history, in its ghost store (only near a clamped wall).
+        self.ghost_states = ghost_state_names(nf)
+        self.persistent_fields = ()
         self.m = np.empty(0)
         self.theta = np.empty(0)
         self.m_image = np.empty((0, nf))
@@ -429,13 +419,14 @@ class ViscoelasticLPS:
         return decay, (-math.expm1(-z) / z if z > 0.0 else 1.0)
 
     def _declare_state(self, bonds) -> None:
-        for name in STATE_FIELDS + self.ghost_bond_states:
+        for name in STATE_FIELDS:
             bonds.add_state(name)
 
     def setup(self, pts) -> None:
         self._declare_state(pts.bonds)
-        for name in self.persistent_fields:
-            pts.fields.setdefault(name, np.zeros(len(pts.x)))
+        if self.ghost_states and pts.ghosts is None:
+            near = near_rows(pts.x0[:pts.n_owned], self.clamp_faces, self.clamp)
+            pts.ghosts = ghost_store(pts.bonds, near, self.ghost_states)
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
@@ -446,29 +437,24 @@ class ViscoelasticLPS:
             self.theta_image = np.zeros((n, len(self.clamp_faces)))
 
     def _ghost(self, pts) -> tuple:
-        """The clamp's state arrays in the kernels' order (GHOST_PER_FACE a face)."""
-        if not len(self.clamp_faces):
-            return (np.empty(0),)       # never read
-        b, nq = pts.bonds, len(GHOST_QUANTITIES)
-        bond = self.ghost_bond_states
-        own = self.persistent_fields
-        out = []
-        for f in range(len(self.clamp_faces)):
-            out += [b.state[k] for k in bond[f * (nq + 1):(f + 1) * (nq + 1)]]
-            out += [pts.fields[k] for k in own[f * nq:(f + 1) * nq]]
-        return tuple(out)
+        """The clamp's ghost-store arrays in the kernels' order (GHOST_PER_FACE a face) and
+        the shift to a ghost source's entry (clamp.ghost_shift)."""
+        if not self.ghost_states:
+            return (np.empty(0),), np.empty(0, np.int64)       # never read
+        return (tuple(pts.ghosts.state[k] for k in self.ghost_states),
+                ghost_shift(pts.ghosts, pts.bonds))
 
     def update_state(self, pts) -> int:
         b = pts.bonds
         self._declare_state(b)          # bonds restored or arrived without the state
         ve_initial_lengths(pts.x0, b.offsets, b.slot, pts.n_owned, b.state["ve_len"])
-        ghost = self._ghost(pts)
+        ghost, shift = self._ghost(pts)
         if len(self.clamp_faces):
             ve_clamp_initial_lengths(pts.x0, b.offsets, b.slot, b.status, pts.n_owned,
-                                     self.clamp_faces, self.clamp, ghost)
+                                     self.clamp_faces, self.clamp, ghost, shift)
         return ve_dilatation(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                              b.state["ve_len"], self.s0, pts.n_owned, self.m, self.theta,
-                             self.clamp_faces, self.clamp, ghost, self.m_image,
+                             self.clamp_faces, self.clamp, ghost, shift, self.m_image,
                              self.theta_image)
 
     def forces(self, pts, f, commit: bool = True) -> int:
@@ -476,9 +462,10 @@ class ViscoelasticLPS:
             raise RuntimeError("viscoelastic_lps: the driver must set model.dt before forces")
         decay, gain = self.relaxation(self.dt) if self.memory == "maxwell" else (1.0, 1.0)
         b = pts.bonds
+        ghost, shift = self._ghost(pts)
         ve_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                   b.state["ve_len"], b.state["ve_iso"], b.state["ve_dev"], self.m,
                   self.theta, self.kappa, self.mu, decay, gain, self.memory == "none",
-                  commit, pts.n_owned, f, self.clamp_faces, self.clamp, self._ghost(pts),
+                  commit, pts.n_owned, f, self.clamp_faces, self.clamp, ghost, shift,
                   self.m_image, self.theta_image)
         return 0

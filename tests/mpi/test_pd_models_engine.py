@@ -60,17 +60,29 @@ def test_pd_model_scenes_match_across_rank_counts(tmp_path, scene):
         assert np.array_equal(got["damage"] > 0, ref["damage"] > 0)
 
 
-def restart_reads_the_state(tmp_path, scene, sets, dt, field, value, state_check):
-    """2 ranks, 50 steps of ``scene`` with ``sets`` (the reference), and 25 steps with a
-    checkpoint; ``state_check(checkpoint)`` looks at it; then the restart to step 50 must be
-    bitwise the reference, and a restart from a copy of the checkpoint whose particle field
-    ``field`` is set to ``value`` (its checksum made to match) must not. Returns the
-    reference frame."""
-    import shutil
-
+def set_own_ghost_state(path, name, value):
+    """In the ghost-store checkpoint ``path`` (clamp.ghost_store), the state ``name`` of
+    every particle's ghost bond to its own image (the entries at position 0) set to
+    ``value``, the checksum made to match."""
     import h5py
 
     from hpcmpm.io import checksum as cks
+
+    with h5py.File(path, "r+") as h:
+        own = h["particles/partner"][:] == 0
+        dset = h[f"particles/state.{name}"]
+        data = dset[:]
+        data[own] = value
+        dset[...] = data
+        dset.attrs["checksum"] = cks.format_checksum(cks.checksum(data))
+
+
+def restart_reads_the_state(tmp_path, scene, sets, dt, alter, state_check):
+    """2 ranks, 50 steps of ``scene`` with ``sets`` (the reference), and 25 steps with a
+    checkpoint; ``state_check(checkpoint)`` looks at it; then the restart to step 50 must be
+    bitwise the reference, and a restart from a copy of the checkpoint changed by
+    ``alter(checkpoint copy)`` must not. Returns the reference frame."""
+    import shutil
 
     fixed = ["--set", f"simulation.dt={dt}", "--set", f"output.every={25 * dt}", *sets]
     full = tmp_path / "full"
@@ -82,10 +94,7 @@ def restart_reads_the_state(tmp_path, scene, sets, dt, field, value, state_check
     state_check(ckpt)
     altered = tmp_path / "altered"
     shutil.copytree(part, altered)
-    with h5py.File(altered / ckpt.name, "r+") as h:
-        dset = h[f"particles/{field}"]
-        dset[...] = value
-        dset.attrs["checksum"] = cks.format_checksum(cks.checksum(dset[:]))
+    alter(altered / ckpt.name)
     hpcmpm(2, "restart", str(ckpt), "--end-time", str(50 * dt))
     got = last_frame(part, 50, 2)
     assert np.array_equal(got["id"], ref["id"])
@@ -98,31 +107,40 @@ def restart_reads_the_state(tmp_path, scene, sets, dt, field, value, state_check
 
 def test_viscoelastic_bond_state_restarts_bitwise(tmp_path):
     """The pie thrown against its sticky wall from next to it, so the PD clamp holds it:
-    the per-bond stored forces and lengths, and the clamp's ghost-bond state (bond states
-    and particle fields), checkpoint; a 2-rank restart is bitwise the uninterrupted run
-    (positions would differ if the stored forces or lengths had been lost), and one with the
-    stored forces of the particles' own ghost bonds zeroed is not."""
+    the per-bond stored forces and lengths, and the clamp's ghost store (its own folder,
+    entries only for the particles within reach of the wall), checkpoint; a 2-rank restart
+    is bitwise the uninterrupted run (positions would differ if the stored forces or lengths
+    had been lost), and one with the stored forces of the particles' own ghost bonds zeroed
+    is not."""
     import h5py
 
+    def ghosts(ckpt):
+        return ckpt.parent / "pd_ghost_bonds_cream" / ckpt.name
+
     def check(ckpt):
-        bonds = ckpt.parent / "pd_bonds_cream" / ckpt.name
-        assert bonds.exists()
+        assert (ckpt.parent / "pd_bonds_cream" / ckpt.name).exists()
+        with h5py.File(ghosts(ckpt)) as h:
+            own = h["particles/partner"][:] == 0
+            iso = h["particles/state.ve_mirror_iso0"][:]
+            dev = h["particles/state.ve_mirror_dev0"][:]
+            owners = h["particles/owner"][:]
         with h5py.File(ckpt) as h:
-            own = h["particles/pd_ve_self_mirror_iso0"][:]
-        with h5py.File(bonds) as h:
-            ghost = h["particles/state.ve_mirror_dev0"][:]
-        assert np.count_nonzero(own) > 5 and np.count_nonzero(ghost) > 10    # the clamp acts
+            n = len(h["particles/id"])
+        # The clamp acts, and only the particles within reach have entries.
+        assert np.count_nonzero(iso[own]) > 5 and np.count_nonzero(dev) > 10
+        assert 0 < len(np.unique(owners)) < n / 2
 
     restart_reads_the_state(tmp_path, "inputs/ibmpm_cream_pie_2d.toml",
                             ["--set", "bodies.0.center=[1.84, 0.6]"], 2e-3,
-                            "pd_ve_self_mirror_iso0", 0.0, check)
+                            lambda c: set_own_ghost_state(ghosts(c), "ve_mirror_iso0", 0.0),
+                            check)
 
 
 def test_clamped_bond_plasticity_restarts_bitwise(tmp_path):
     """ibmpm_wall_fracture_2d with its wall made a low slab sliding on the sticky floor (an
     initial sideways velocity): the clamp's ghost bonds at the floor yield (bond_energy.py,
     `bond_energy_clamp_terms`), and their plastic stretches (a bond state per face and a
-    particle field for each particle's own image) checkpoint with the run: a 2-rank restart
+    ghost-store entry for each particle's own image) checkpoint with the run: a 2-rank restart
     from the half-way checkpoint is bitwise the uninterrupted run, and the same restart with
     the particles' ghost stretches changed in the checkpoint is not (the restart reads them).
     The run on 1 rank agrees with the 2-rank run to 1e-10.
@@ -138,16 +156,20 @@ def test_clamped_bond_plasticity_restarts_bitwise(tmp_path):
             "--set", "bodies.0.upper=[0.9, 0.06]"]
     scene = "inputs/ibmpm_wall_fracture_2d.toml"
 
+    def ghosts(ckpt):
+        return ckpt.parent / "pd_ghost_bonds_wall" / ckpt.name
+
     def check(ckpt):
-        with h5py.File(ckpt) as h:
-            own = h["particles/pd_self_mirror_plastic_stretch0"][:]
-        with h5py.File(ckpt.parent / "pd_bonds_wall" / ckpt.name) as h:
+        with h5py.File(ghosts(ckpt)) as h:
+            own = h["particles/partner"][:] == 0
             mirror = h["particles/state.mirror_plastic_stretch0"][:]
-        assert np.count_nonzero(own) > 10 and np.count_nonzero(mirror) > 100   # they yielded
+        # They yielded: own images and partners' images.
+        assert np.count_nonzero(mirror[own]) > 10 and np.count_nonzero(mirror[~own]) > 100
 
     # 0.5: a plastic stretch beyond every bond's current stretch.
-    ref = restart_reads_the_state(tmp_path, scene, sets, dt,
-                                  "pd_self_mirror_plastic_stretch0", 0.5, check)
+    ref = restart_reads_the_state(
+        tmp_path, scene, sets, dt,
+        lambda c: set_own_ghost_state(ghosts(c), "mirror_plastic_stretch0", 0.5), check)
     # One rank: on two the ghost bonds by the cut read their sources' image mean stretch
     # from the halo.
     one = tmp_path / "one"

@@ -9,6 +9,7 @@ import pytest
 from hpcmpm import cli
 
 from hpcmpm.errors import SceneError
+from hpcmpm.pd.clamp import near_rows
 from hpcmpm.runner import make_domain
 from hpcmpm.scene import load_scene, parse_scene
 from hpcmpm.simulation import Simulation
@@ -219,18 +220,24 @@ def test_off_grid_pd_body_stops_at_a_wall(condition):
     assert y.min() >= 0.0 and y.min() < 0.01
 
 
-@pytest.mark.parametrize("scene, sets, states", [
-    ("pd_plate_tear_2d", (), 0),                                  # PMB: no per-bond state
-    ("ibmpm_wall_fracture_2d", (), 2),        # plastic stretch + the floor clamp's ghosts
-    ("ibmpm_wall_fracture_2d", ('materials.wall.clamp="none"',), 1),
-    ("ibmpm_cream_pie_2d", (), 3),                      # the pie starts out of the wall's reach
-    ("ibmpm_cream_pie_2d", ("bodies.0.center=[1.84, 0.6]",), 3 + 5),      # clamped: + 5
+@pytest.mark.parametrize("scene, sets, states, ghost_states", [
+    ("pd_plate_tear_2d", (), 0, 0),                               # PMB: no per-bond state
+    ("ibmpm_wall_fracture_2d", (), 1, 1),     # plastic stretch; the floor clamp's ghosts
+    ("ibmpm_wall_fracture_2d", ('materials.wall.clamp="none"',), 1, 0),
+    ("ibmpm_cream_pie_2d", (), 3, 0),                   # the pie starts out of the wall's reach
+    ("ibmpm_cream_pie_2d", ("bodies.0.center=[1.84, 0.6]",), 3, 5),       # clamped
 ])
-def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, states):
+def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, states,
+                                                                ghost_states):
     """The estimate before allocation (`side_bytes_per_particle`, used by the start-up
     memory check and the refusal above) prices a half-bond as the bonds the run then holds
-    do, per-bond states included: the models' own and the PD clamp's, which depend on the
-    walls the bodies start near (21 B core, 8 B a state, 4 B search scratch)."""
+    do, per-bond states included (21 B core, 8 B a state, 4 B search scratch), and the PD
+    clamp's ghost store (clamp.ghost_store) for the particles within reach of a clamped
+    wall only: one entry per half-bond and one for the particle's own image, each 21 B and
+    8 B a state, for the share of the bodies' bounding boxes within reach. That share counts
+    interior families, so it may exceed the store a run holds (fewer bonds near a body's
+    edge, a disk's corners empty) but not fall below it by more than those (here: within
+    a factor 2)."""
     from hpcmpm.runner import initial_particles
 
     sc = load_scene(f"inputs/{scene}.toml", list(sets))
@@ -242,5 +249,27 @@ def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, sta
     ext.model.dt = 1e-4                       # a rate model integrates over a step
     ext.compute_forces(*ext._rows())         # the models declare their state on first use
     material = ext.material
-    per_bond = material.side_bytes_per_particle() / material.half_bonds_per_particle()
-    assert per_bond == ext.bonds.resident_bytes_per_bond() + 4 == 21 + 8 * states + 4
+    n_bonds = material.half_bonds_per_particle()
+    assert ext.bonds.resident_bytes_per_bond() == 21 + 8 * states
+    if not ghost_states:
+        assert ext.ghosts is None
+        assert material.side_bytes_per_particle() == n_bonds * (21 + 8 * states + 4)
+        return
+    ghosts = ext.ghosts
+    assert ghosts.resident_bytes_per_bond() == 21 + 8 * ghost_states
+    # Entries exactly for the particles within reach, one per half-bond and one own.
+    start, stop = ext._rows()
+    near = near_rows(sim.particles["x0"][start:stop], material.clamp_faces,
+                     material.clamp_array())
+    counts = ghosts.counts()
+    assert 0 < near.sum() < len(near)
+    assert np.array_equal(counts[near], ext.bonds.counts()[near] + 1)
+    assert not counts[~near].any()
+    estimate = material.side_bytes_per_particle() - n_bonds * (21 + 8 * states + 4)
+    entries = len(near) * estimate / (21 + 8 * ghost_states)
+    print(f"{scene}: {near.sum()} of {len(near)} particles in reach, ghost entries "
+          f"{ghosts.n_bonds} (estimate {entries:.0f}); a dense store would hold "
+          f"{ext.bonds.n_bonds} x {8 * ghost_states} B = "
+          f"{ext.bonds.n_bonds * 8 * ghost_states / 1e6:.2f} MB, this one "
+          f"{ghosts.nbytes() / 1e6:.2f} MB")
+    assert ghosts.n_bonds <= entries < 2 * ghosts.n_bonds
