@@ -67,6 +67,7 @@ def default_camera(lower: np.ndarray, upper: np.ndarray, up_axis: int,
                    fov: float = 30.0) -> Camera:
     centre = 0.5 * (lower + upper)
     radius = 0.5 * float(np.linalg.norm(upper - lower))
+    up_axis %= 3  # -1 (RunGeometry without a scene): the last axis
     up = np.zeros(3)
     up[up_axis] = 1.0
     across, depth_axis = [a for a in range(3) if a != up_axis]

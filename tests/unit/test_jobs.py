@@ -29,7 +29,7 @@ def test_rendered_script_is_valid_bash_with_resume_logic(tmp_path, scheduler):
 
 
 def _run_with_stubs(tmp_path, scheduler, launcher, exit_code, script_name="job.sh",
-                    rendered_path="", **render_args):
+                    rendered_path="", nodes=1, ranks_per_node=2, **render_args):
     """Run the rendered script with `launcher` (srun/mpiexec) replaced by a stub that records
     its arguments and exits with ``exit_code``; the requeue commands are stubs too."""
     bin_dir = tmp_path / "bin"
@@ -41,7 +41,7 @@ def _run_with_stubs(tmp_path, scheduler, launcher, exit_code, script_name="job.s
         stub.write_text(f'#!/usr/bin/env bash\necho "{name} $*" >> {log}\nexit {code}\n')
         stub.chmod(0o755)
     out = tmp_path / "out"
-    text = render(scheduler, "scene.toml", 1, 2, "00:10:00", out_dir=str(out),
+    text = render(scheduler, "scene.toml", nodes, ranks_per_node, "00:10:00", out_dir=str(out),
                   activate="true", script_path=rendered_path, **render_args)
     script = tmp_path / script_name
     script.write_text(text)
@@ -146,3 +146,60 @@ def test_script_writes_in_mpio_mode_when_h5py_has_mpi(tmp_path, has_mpi, mode):
     assert proc.returncode == 0, proc.stderr
     assert log.read_text().split() == [f"mode={mode}"]
     assert ("serial mode" in proc.stderr) == (not has_mpi)
+
+
+# --- Added by the mutation audit (each failed under a plausible bug the tests above let through).
+
+
+@pytest.mark.parametrize("nodes,ranks_per_node", [(2, 3), (1, 4), (3, 1)])
+def test_pbs_starts_nodes_times_ranks_per_node_ranks(tmp_path, nodes, ranks_per_node):
+    proc, calls, _ = _run_with_stubs(tmp_path, "pbs", "mpiexec", 0, nodes=nodes,
+                                     ranks_per_node=ranks_per_node)
+    assert proc.returncode == 0, proc.stderr
+    launches = [c for c in calls if c.startswith("mpiexec ")]
+    assert launches == [f"mpiexec -n {nodes * ranks_per_node} hpcmpm run scene.toml --out "
+                        f"{tmp_path / 'out'} --quiet"], calls
+
+
+@pytest.mark.parametrize("walltime,seconds,margin", [("02:00:00", 7200, 300),   # capped
+                                                     ("00:10:00", 600, 60),     # a tenth
+                                                     ("01:02:03", 3723, 300),
+                                                     ("00:00:50", 50, 10)])     # at least 10 s
+def test_checkpoint_signal_comes_a_tenth_of_the_wall_time_early(walltime, seconds, margin):
+    """SLURM signals ``margin`` s before the end; PBS (no early warning) sleeps for the wall
+    time less the margin, then signals the ranks."""
+    import re
+
+    slurm = render("slurm", "x.toml", 1, 1, walltime)
+    assert f"#SBATCH --signal=B:USR1@{margin}\n" in slurm
+    assert f"#SBATCH --time={walltime}\n" in slurm
+    pbs = render("pbs", "x.toml", 1, 1, walltime)
+    assert f"#PBS -l walltime={walltime}\n" in pbs
+    sleeps = re.findall(r"sleep \$\(\((\d+) - (\d+)\)\)", pbs)
+    assert sleeps == [(str(seconds), str(margin))], sleeps
+
+
+def test_jobscript_defaults_and_extra_run_arguments_reach_the_script(tmp_path, monkeypatch,
+                                                                     capsys):
+    """Without --nodes / --ranks-per-node the job asks for 1 node with 1 rank (the documented
+    defaults), and the `hpcmpm run` arguments after `--` are on the launched command line."""
+    from hpcmpm import cli
+
+    scene = Path("inputs/bar_2d.toml").resolve()
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["jobscript", "--scheduler", "slurm", "--time", "00:10:00",
+                     "--activate", "true", "-o", "job.sh", str(scene), "--",
+                     "--end-time", "0.5", "--set", "simulation.cfl=0.3"]) == 0
+    text = (tmp_path / "job.sh").read_text()
+    assert "#SBATCH --nodes=1\n" in text and "#SBATCH --ntasks-per-node=1\n" in text
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    log = tmp_path / "calls.log"
+    (bin_dir / "srun").write_text(f'#!/usr/bin/env bash\necho "srun $*" >> {log}\nexit 0\n')
+    (bin_dir / "srun").chmod(0o755)
+    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", SLURM_JOB_ID="42")
+    proc = run_in_group(["bash", "job.sh"], env=env, timeout=60, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert log.read_text().splitlines() == [
+        f"srun --mpi=pmi2 --kill-on-bad-exit=1 hpcmpm run {scene} --out runs/bar_2d --quiet "
+        f"--end-time 0.5 --set simulation.cfl=0.3"]

@@ -332,3 +332,258 @@ def test_field_values_and_components():
                           ("v:3", "no component '3'")]:
         with pytest.raises(RenderError, match=message):
             values(spec)
+
+
+# --- Added by the mutation audit: each test below failed under a plausible bug that every
+# --- test above let through (the bug is named in the docstring).
+
+
+def test_3d_nearer_sphere_hides_the_farther_one():
+    """Depth test: a red sphere in front of a larger blue one, on the camera's axis, is what
+    the centre of the picture shows (not whichever sphere was drawn last)."""
+    from hpcmpm.viz.fields import FieldChoice
+    from hpcmpm.viz.layout import colour_scale
+    from hpcmpm.viz.render3d import Camera, Renderer3D
+    from hpcmpm.viz.series import RunGeometry
+
+    geometry = RunGeometry("t", 3, np.zeros(3), np.ones(3), 0.1)
+    camera = Camera(np.array([0.0, -5.0, 0.0]), np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    renderer = Renderer3D(geometry, colour_scale(FieldChoice("speed"), 0, 1), (200, 160),
+                          camera)
+    # Near (y = -1, depth 4) red; far (y = +1, depth 6), three times wider, blue. Far first.
+    x = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]])
+    rgba = renderer.raster(x, np.array([0.6, 0.2]), np.array([[0.0, 0.0, 1.0],
+                                                               [1.0, 0.0, 0.0]]))
+    h, w = rgba.shape[:2]
+    centre = rgba[h // 2 - 2: h // 2 + 2, w // 2 - 2: w // 2 + 2]
+    assert np.all(centre[..., 3] == 1.0)
+    assert np.all(centre[..., 0] > 0.3) and np.all(centre[..., 2] < 0.3), centre[..., :3]
+    # Beyond the red sphere's outline (0.2 at depth 4) but inside the blue one's: blue.
+    f = 0.5 * h / math.tan(math.radians(15))  # focal length in pixels, fov 30 degrees
+    col = int(round(w / 2 + f * 0.35 / 6))
+    assert rgba[h // 2, col, 2] > 0.3 and rgba[h // 2, col, 0] < 0.3, rgba[h // 2, col]
+
+
+def test_default_camera_sees_the_whole_domain_from_above(tmp_path):
+    """The default 3D camera looks at the domain's centre from above (along the up axis, the
+    one opposite to gravity) and far enough that the domain's bounding sphere fits its
+    vertical field of view; a scene with gravity along -y has y up."""
+    from hpcmpm.viz.render3d import default_camera
+    from hpcmpm.viz.series import run_geometry
+
+    lower, upper = np.array([0.0, -1.0, 2.0]), np.array([2.0, 0.5, 3.0])
+    centre, radius = (lower + upper) / 2, np.linalg.norm(upper - lower) / 2
+    for up_axis in (0, 1, 2):
+        camera = default_camera(lower, upper, up_axis, fov=30.0)
+        np.testing.assert_allclose(camera.target, centre)
+        np.testing.assert_array_equal(camera.up, np.eye(3)[up_axis])
+        offset = camera.eye - centre
+        assert offset[up_axis] > 0.2 * np.linalg.norm(offset), (up_axis, offset)  # above
+        # Half the angle the bounding sphere subtends at the eye is within half the fov.
+        assert math.degrees(math.asin(radius / np.linalg.norm(offset))) <= 15.0, up_axis
+
+    x = lattice((0.1, 0.5, 0.2), (0.4, 0.8, 0.5), 0.05)
+    scene = SCENE_3D.replace("end_time = 1.0", "end_time = 1.0\ngravity = [0.0, -9.81, 0.0]")
+    run = write_known_run(tmp_path / "run", scene, x)
+    assert run_geometry(list_frames(run)[0], run, x).up_axis == 1
+
+
+def test_3d_frames_without_a_scene_render_with_the_default_camera(tmp_path):
+    """Frames whose scene text is not a valid scene (the geometry falls back to the particles'
+    bounding box, up_axis -1 = the last axis) still render in 3D with the default camera."""
+    x = lattice((0.1, 0.5, 0.2), (0.4, 0.8, 0.5), 0.05)
+    run = write_known_run(tmp_path / "run", SCENE_3D, x)
+    with h5py.File(run / "frame_000000.h5", "r+") as h5:
+        h5.attrs["scene"] = ""
+    result = render_run(run, size=(200, 150), comm=OneRank())
+    image = read_png(result.pngs[0])
+    assert image.shape == (150, 200, 3) and coloured(image).sum() > 200
+
+
+COLLIDERS_2D = """
+[[colliders]]
+name = "floor"
+shape = "half_space"
+point = [1.0, 0.3]
+normal = [1.0, 1.0]
+[[colliders]]
+name = "paddle"
+shape = "box"
+center = [1.4, 0.5]
+half_extents = [0.3, 0.1]
+rotation = 0.5
+angular_velocity = 1.0
+"""
+
+
+def test_2d_colliders_are_drawn_where_they_are():
+    """The half-space is drawn on its obstacle side ((x - point) . normal < 0), and a box
+    turned by angle0 + omega t has its corners at centre + R(angle) (+-hx, +-hy)."""
+    from matplotlib.path import Path as MplPath
+
+    from hpcmpm.boundaries.colliders import Collider
+    from hpcmpm.viz.render2d import collider_patches
+    from hpcmpm.viz.series import RunGeometry
+
+    scene = parse_scene(SCENE_2D + COLLIDERS_2D)
+    geometry = RunGeometry("t", 2, np.array([0.0, 0.0]), np.array([2.0, 1.0]), 0.02,
+                           colliders=[Collider(c, 2) for c in scene.colliders])
+    half_space, box = collider_patches(geometry, 0.3, 2.0)
+    n = np.array([1.0, 1.0]) / math.sqrt(2)
+    outline = MplPath(half_space.get_xy())
+    point = np.array([1.0, 0.3])
+    assert outline.contains_point(point - 0.2 * n)       # inside the obstacle
+    assert not outline.contains_point(point + 0.2 * n)   # the material's side
+    angle = 0.5 + 1.0 * 0.3
+    R = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    want = {tuple(np.round([1.4, 0.5] + R @ [sx * 0.3, sy * 0.1], 9))
+            for sx in (-1, 1) for sy in (-1, 1)}
+    got = {tuple(np.round(p, 9)) for p in box.get_xy()}
+    assert got == want, (got, want)
+
+
+def test_colour_scales_of_materials_uniform_fields_and_nan():
+    """One distinct colour per material index up to the largest (names or not); a uniform
+    field gets a band around its value (its colour mid-scale); NaN does not spoil the range."""
+    from hpcmpm.viz.fields import FieldChoice
+    from hpcmpm.viz.layout import colour_scale
+    from hpcmpm.viz.series import finite_range
+
+    scale = colour_scale(FieldChoice("material"), 0.0, 3.0, [])
+    colours = [tuple(c) for c in scale.rgba(np.arange(4.0))]
+    assert len(set(colours)) == 4 and scale.ticklabels == ["0", "1", "2", "3"]
+    scale = colour_scale(FieldChoice("material"), 0.0, 1.0, ["steel", "rubber", "snow"])
+    assert scale.ticklabels == ["steel", "rubber", "snow"]
+
+    uniform = colour_scale(FieldChoice("speed"), 2.0, 2.0)
+    assert uniform.norm.vmin < 2.0 < uniform.norm.vmax
+    assert uniform.norm(2.0) == pytest.approx(0.5)
+
+    assert finite_range(np.array([np.nan, 5.0, -np.inf, 2.0, np.inf])) == (2.0, 5.0)
+    assert finite_range(np.array([np.nan, np.nan])) == (math.inf, -math.inf)
+
+
+def test_frames_from_the_very_first_by_a_negative_index():
+    frames = list(range(10))
+    assert select_frames(frames, "-10") == [0]
+    assert select_frames(frames, "9") == [9]
+    with pytest.raises(RenderError, match="no such frame"):
+        select_frames(frames, "-11")
+
+
+def test_pressure_of_a_frame_that_carries_J_without_F():
+    """A fluid (deformation = "J") writes J and tau but no F: pressure is read from them."""
+    from hpcmpm.viz.fields import FieldChoice, datasets_needed, field_values
+
+    rng = np.random.default_rng(7)
+    tau, J = rng.standard_normal((4, 2, 2)), 1.0 + 0.1 * rng.random(4)
+    needed = datasets_needed(FieldChoice("pressure"), {"tau": (4, 2, 2), "J": (4,)})
+    assert sorted(needed) == ["J", "tau"]
+    data = {"tau": tau, "J": J}
+    np.testing.assert_allclose(field_values(FieldChoice("pressure"), data, 2),
+                               -(tau[:, 0, 0] + tau[:, 1, 1]) / (2 * J), rtol=1e-14)
+
+
+def _speeds_run(tmp_path, speeds):
+    x = lattice((0.2, 0.5), (0.6, 0.9), SPACING[2])
+    times = tuple(0.1 * i for i in range(len(speeds)))
+    return write_known_run(tmp_path / "run", SCENE_2D, x, times=times, speeds=list(speeds))
+
+
+def _mean_abs(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a.astype(float) - b.astype(float)).mean())
+
+
+def test_gif_plays_the_frames_in_order_at_the_frame_rate(tmp_path):
+    """Frame i of the GIF is PNG i (the nearest of the PNGs: GIF quantises colours), each
+    shown 1000 / fps ms; a single rendered frame makes no movie."""
+    from PIL import Image
+
+    run = _speeds_run(tmp_path, [0.0, 2.0, 4.0])
+    result = render_run(run, size=(160, 120), fps=5.0, movie="gif", comm=OneRank())
+    pngs = [read_png(p) for p in result.pngs]
+    with Image.open(result.movie) as gif:
+        assert gif.n_frames == 3
+        for i in range(3):
+            gif.seek(i)
+            assert gif.info["duration"] == 200, gif.info
+            frame = np.asarray(gif.convert("RGB"))
+            distances = [_mean_abs(frame, png) for png in pngs]
+            assert int(np.argmin(distances)) == i, (i, distances)
+    one = render_run(run, frames="-1", out=tmp_path / "one", size=(160, 120), movie="gif",
+                     comm=OneRank())
+    assert one.movie is None and not list((tmp_path / "one").glob("render.*"))
+
+
+@pytest.mark.needs_tool
+def test_mp4_lasts_frames_over_fps(tmp_path):
+    if find_ffmpeg() is None:
+        pytest.skip("no ffmpeg (pip install imageio-ffmpeg): MP4 not available, GIF is used")
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg",
+                                         reason="reading MP4 frames needs imageio-ffmpeg")
+    run = _speeds_run(tmp_path, [0.0, 1.0, 2.0, 3.0])
+    result = render_run(run, size=(160, 120), fps=5.0, movie="mp4", comm=OneRank())
+    frames, seconds = imageio_ffmpeg.count_frames_and_secs(str(result.movie))
+    assert frames == 4 and seconds == pytest.approx(4 / 5.0, abs=0.05), (frames, seconds)
+    # And in order: the decoded frames' nearest PNGs are 0, 1, 2, 3 (the codec is lossy).
+    reader = imageio_ffmpeg.read_frames(str(result.movie))
+    meta = next(reader)
+    w, h = meta["size"]
+    pngs = [read_png(p) for p in result.pngs]
+    for i, raw in enumerate(reader):
+        frame = np.frombuffer(raw, np.uint8).reshape(h, w, 3)[:120, :160]
+        assert int(np.argmin([_mean_abs(frame, png) for png in pngs])) == i
+
+
+def test_ranks_render_only_the_frames_dealt_to_them(tmp_path, monkeypatch):
+    """Rank 1 of 2 draws frames 1 and 3 of 0..3 (round-robin), not the others' frames."""
+    import hpcmpm.viz.render as render_module
+
+    class SecondOfTwo(OneRank):
+        rank, size = 1, 2
+
+    # The plan is rank 0's work: here this rank makes it itself.
+    monkeypatch.setattr(render_module, "_on_root", lambda comm, work: work())
+    run = _speeds_run(tmp_path, [0.0, 1.0, 2.0, 3.0])
+    out = tmp_path / "pictures"
+    out.mkdir()
+    render_run(run, out=out, size=(120, 90), movie="none", comm=SecondOfTwo())
+    assert sorted(p.name for p in out.glob("render_*.png")) == \
+        ["render_000001.png", "render_000003.png"]
+
+
+def test_plot_panels_draw_each_diagnostic_against_time():
+    """Every curve of the diagnostics figure is (time, that column), grouped into panels."""
+    from hpcmpm.viz.diagnostics import diagnostic_panels
+
+    rows = [{"frame": i, "time": 0.25 * i, "step": 7 * i, "mass": 2.0, "momentum_x": 1.0 + i,
+             "momentum_y": -i, "kinetic_energy": 3.0 * i, "total_energy": 3.0 * i + 1,
+             "cg_iterations": 10 + i} for i in range(4)]
+    columns = list(rows[0])
+    panels = diagnostic_panels(columns, rows)
+    curves = {c.label: c for p in panels for c in p.curves}
+    assert set(curves) == {"mass", "momentum_x", "momentum_y", "kinetic_energy",
+                           "total_energy", "cg_iterations"}
+    for name, curve in curves.items():
+        assert list(curve.x) == [0.0, 0.25, 0.5, 0.75], name
+        assert list(curve.y) == [r[name] for r in rows], name
+    assert [sorted(c.label for c in p.curves) for p in panels] == [
+        ["mass"], ["momentum_x", "momentum_y"], ["kinetic_energy", "total_energy"],
+        ["cg_iterations"]]
+
+
+def test_curve_against_reference_returns_the_plotted_difference(tmp_path):
+    """What the verification tests assert on: y - y_ref at x, divided by ``relative_to``,
+    for a reference function and for a tabulated one (linear interpolation)."""
+    from hpcmpm.viz.plots import curve_against_reference
+
+    x = np.array([0.0, 0.5, 1.0, 1.5, 2.0])
+    y = np.array([1.0, 2.0, 2.5, 4.0, 3.0])
+    diff = curve_against_reference(tmp_path / "f.png", x, y, lambda s: 2.0 * s,
+                                   relative_to=4.0)
+    np.testing.assert_allclose(diff, [0.25, 0.25, 0.125, 0.25, -0.25], rtol=1e-15)
+    # Tabulated at 0, 1, 3 with values 0, 10, 30: y_ref(x) = 10 x.
+    diff = curve_against_reference(tmp_path / "g.png", x, y,
+                                   ([0.0, 1.0, 3.0], [0.0, 10.0, 30.0]))
+    np.testing.assert_allclose(diff, y - 10.0 * x, rtol=1e-15)
+    assert (tmp_path / "f.png").stat().st_size > 5000
