@@ -108,6 +108,7 @@ class Domain(Communicator):
         self.n_cells = np.round((self.domain_hi - self.domain_lo) / self.dx).astype(np.int64)
         self.periodic = np.zeros(self.dim, dtype=bool)
         self.periodic[list(periodic)] = True
+        self._any_periodic = bool(self.periodic.any())   # tested every step (`wrap`)
         # Period in cells per axis, 0 where the axis is not periodic (the wrap kernel's input).
         self.period = np.where(self.periodic, self.n_cells, 0).astype(np.int64)
         # Image offsets in cells: every combination of -1, 0, +1 periods over the periodic
@@ -197,7 +198,7 @@ class Domain(Communicator):
         """Wrap positions x (n, dim) into the domain along the periodic axes, in place
         (``x <- lo + (x - lo) mod L``); returns how many coordinates moved. Nothing to do
         (and no pass over x) without periodic axes."""
-        if not self.periodic.any() or not len(x):
+        if not self._any_periodic or not len(x):
             return 0
         return int(wrap_periodic(x, self.domain_lo, self.inv_dx, self.dx, self.period))
 
@@ -495,9 +496,11 @@ class Domain(Communicator):
         """One message per neighbour holding all its regions; a rank's regions on itself (a
         periodic image of its own nodes) are copied, not sent. Everything is packed before
         anything is unpacked, so a self copy reads the values from before the exchange."""
+        if not sends and not recvs:     # one rank, no periodic axis: nothing to exchange
+            return
         fields = [grid[name] for name in names]
         # Values per node of all the fields (1 per scalar, d per vector).
-        per_node = sum(int(np.prod(f.shape[self.dim:], dtype=np.int64)) for f in fields)
+        per_node = sum(math.prod(f.shape[self.dim:]) for f in fields)
         requests, received, local = [], [], {}
         for r, regions in recvs:
             boxes, nodes = self._region_boxes(regions, grid)
