@@ -228,12 +228,13 @@ class Peridynamic(Material):
 
     def bond_state_names(self) -> tuple[str, ...]:
         """The per-bond state arrays this material's model keeps (pd/bonds.py ``state``):
-        the bond-energy plastic stretch, the viscoelastic stored forces and lengths."""
+        the bond-energy plastic stretch (with plasticity), the viscoelastic stored forces and
+        lengths."""
         model = self.params["model"]
         if model == "bond_energy":
             from ..pd.bond_energy import PLASTIC_STATE
 
-            return (PLASTIC_STATE,)
+            return (PLASTIC_STATE,) if self.params["plastic_yield"] < math.inf else ()
         if model == "viscoelastic_lps":
             from ..pd.viscoelastic_lps import STATE_FIELDS
 

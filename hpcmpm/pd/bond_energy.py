@@ -74,6 +74,7 @@ from .families import full_family_sum
 from .geometry import bond_vectors, norm3
 
 PLASTIC_STATE = "plastic_stretch"
+NO_STATE = np.zeros(0)      # the kernels' plastic stretch of an elastic body (never read)
 
 
 def mirror_state_names(n_faces: int) -> tuple[str, ...]:
@@ -189,7 +190,7 @@ def bond_energy_forces(x, x0, vol, offsets, slot, status, weight, F, active, eis
             yl = norm3(y0, y1, y2)
             s = yl / xl - 1.0
             wb = beta * weight[b]
-            ep = e_p[b]
+            ep = e_p[b] if plastic else 0.0     # an elastic body keeps no plastic stretch
             if plastic:
                 e_dev = s - 0.5 * (eiso[p] + eiso[q])
                 dep = plastic_return(wb * stiff * (e_dev - ep) / xl, wb * stiff, xl, psi_p)
@@ -227,13 +228,14 @@ def bond_energy_density(x, x0, vol, offsets, slot, status, weight, F, active, e_
             q = slot[b]
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
             xl = norm3(X0, X1, X2)
-            s = norm3(y0, y1, y2) / xl - 1.0 - e_p[b]
+            s = norm3(y0, y1, y2) / xl - 1.0
             sb = 0.0
             if plastic:
+                s -= e_p[b]
                 sb = s
             elif active[p] != 0.0:
                 pb0, pb1, pb2 = _apply(F, p, X0, X1, X2, dim)
-                sb = norm3(pb0, pb1, pb2) / xl - 1.0 - e_p[b]
+                sb = norm3(pb0, pb1, pb2) / xl - 1.0
             s_w += beta * weight[b] * (mu * sb * sb + 0.5 * lam * s * s) * vol[q]
         out[p] = s_w
 
@@ -377,7 +379,13 @@ class BondEnergy:
         return self.c_dt
 
     def _declare_state(self, bonds) -> None:
-        bonds.add_state(PLASTIC_STATE)
+        if self.psi_p < math.inf:       # an elastic body keeps no plastic stretch
+            bonds.add_state(PLASTIC_STATE)
+
+    def _plastic_stretch(self, bonds) -> np.ndarray:
+        """The per-bond plastic stretch, zeros for an elastic body (which stores none)."""
+        e_p = bonds.state.get(PLASTIC_STATE)
+        return np.zeros(bonds.n_bonds) if e_p is None else e_p
 
     def setup(self, pts) -> None:
         self._declare_state(pts.bonds)
@@ -425,8 +433,8 @@ class BondEnergy:
     def forces(self, pts, f, commit: bool = True) -> int:
         b = pts.bonds
         bond_energy_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                           self.F, self.active, self.eiso, b.state[PLASTIC_STATE], self.beta,
-                           self.lam, self.mu, self.psi_p, commit, pts.n_owned, f)
+                           self.F, self.active, self.eiso, b.state.get(PLASTIC_STATE, NO_STATE),
+                           self.beta, self.lam, self.mu, self.psi_p, commit, pts.n_owned, f)
         self._clamp_terms(pts, commit, False, f)
         return 0
 
@@ -434,8 +442,8 @@ class BondEnergy:
         b = pts.bonds
         out = np.empty(pts.n_owned) if out is None else out
         bond_energy_density(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                            self.F, self.active, b.state[PLASTIC_STATE], self.beta, self.lam,
-                            self.mu, self.psi_p < math.inf, pts.n_owned, out)
+                            self.F, self.active, b.state.get(PLASTIC_STATE, NO_STATE), self.beta,
+                            self.lam, self.mu, self.psi_p < math.inf, pts.n_owned, out)
         self._clamp_terms(pts, False, True, out.reshape(-1, 1))
         return out
 
@@ -443,6 +451,6 @@ class BondEnergy:
         b = pts.bonds
         out = np.empty(b.n_bonds)
         yield_values(pts.x, pts.x0, b.offsets, b.slot, b.status, b.weight, self.eiso,
-                     b.state[PLASTIC_STATE], self.beta, self.lam, self.mu, self.psi_p,
+                     self._plastic_stretch(b), self.beta, self.lam, self.mu, self.psi_p,
                      pts.n_owned, out)
         return out

@@ -224,6 +224,7 @@ def test_off_grid_pd_body_stops_at_a_wall(condition):
     ("pd_plate_tear_2d", (), 0, 0),                               # PMB: no per-bond state
     ("ibmpm_wall_fracture_2d", (), 1, 1),     # plastic stretch; the floor clamp's ghosts
     ("ibmpm_wall_fracture_2d", ('materials.wall.clamp="none"',), 1, 0),
+    ("ibmpm_wall_fracture_2d", ("materials.wall.plastic_yield=inf",), 0, 0),   # elastic
     ("ibmpm_cream_pie_2d", (), 3, 0),                   # the pie starts out of the wall's reach
     ("ibmpm_cream_pie_2d", ("bodies.0.center=[1.84, 0.6]",), 3, 5),       # clamped
 ])
