@@ -37,15 +37,19 @@ from .mesh import inside_mesh
 CHUNK = 1 << 18
 
 
-def lattice_axes(lower, upper, domain_lo, spacing: float) -> list[np.ndarray]:
+def lattice_axes(lower, upper, domain_lo, spacing: float,
+                 closed: bool = False) -> list[np.ndarray]:
     """Lattice coordinates ``domain_lo + (k + 1/2) spacing`` per axis in [lower, upper).
 
     Half-open so that two bodies sharing a face never both take (or both miss) a point that
-    lies exactly on it; the integer range decides membership, not a float comparison."""
+    lies exactly on it; the integer range decides membership, not a float comparison. With
+    ``closed``, [lower, upper]: the bounding box of a body whose own inside test is closed
+    (sphere, cylinder) must not drop the points on its upper extremes, which are inside."""
     axes = []
     for lo, hi, origin in zip(lower, upper, domain_lo):
         k0 = int(np.ceil((lo - origin) / spacing - 0.5))
-        k1 = int(np.ceil((hi - origin) / spacing - 0.5))
+        k1 = int(np.floor((hi - origin) / spacing - 0.5)) + 1 if closed else \
+            int(np.ceil((hi - origin) / spacing - 0.5))
         axes.append(origin + (np.arange(k0, max(k0, k1)) + 0.5) * spacing)
     return axes
 
@@ -100,21 +104,27 @@ MAX_AXIS_POINTS = 2**31
 MAX_LATTICE_POINTS = 2**53
 
 
-def lattice_shape(lower, upper, domain_lo, spacing: float) -> list[float]:
+def lattice_shape(lower, upper, domain_lo, spacing: float,
+                  closed: bool = False) -> list[float]:
     """Points per axis of `lattice_axes`, computed in floats (inf when they overflow), without
     allocating anything."""
     shape = []
     for lo, hi, origin in zip(lower, upper, domain_lo):
         a, b = (lo - origin) / spacing - 0.5, (hi - origin) / spacing - 0.5
-        shape.append(max(math.ceil(b) - math.ceil(a), 0) if math.isfinite(a) and
-                     math.isfinite(b) else math.inf)
+        if not (math.isfinite(a) and math.isfinite(b)):
+            shape.append(math.inf)
+            continue
+        end = math.floor(b) + 1 if closed else math.ceil(b)
+        shape.append(max(end - math.ceil(a), 0))
     return shape
 
 
 def body_lattice(body, scene: Scene) -> BodyLattice:
     lower, upper = body_bounds(body.shape, body.params, scene.dim)
     spacing = scene.dx / scene.particles_per_cell
-    shape = lattice_shape(lower, upper, scene.domain_lo, spacing)
+    # The inside tests of spheres and cylinders are closed (`inside`): so is their lattice.
+    closed = body.shape in ("sphere", "cylinder")
+    shape = lattice_shape(lower, upper, scene.domain_lo, spacing, closed)
     total = math.prod(float(n) for n in shape)
     if max(shape) > MAX_AXIS_POINTS or total > MAX_LATTICE_POINTS:
         raise SceneError(
@@ -122,7 +132,7 @@ def body_lattice(body, scene: Scene) -> BodyLattice:
             f"would take {total:.3g} lattice points ({float(max(shape)):.3g} along one axis) "
             f"at the particle spacing dx / particles_per_cell = {spacing:g}, more than any "
             f"run can hold; use a larger simulation.dx or fewer particles_per_cell")
-    return BodyLattice(lattice_axes(lower, upper, scene.domain_lo, spacing),
+    return BodyLattice(lattice_axes(lower, upper, scene.domain_lo, spacing, closed),
                        solid=body.shape == "box")
 
 

@@ -158,6 +158,12 @@ def analytic_cases():
         cases.append((f"half_space{dim}", Collider(collider_spec(
             "half_space", {"point": p, "normal": n * 3}), dim), x, (x - p) @ n,
             np.tile(n, (len(x), 1))))
+    # A ceiling in 3D: normal -z, antiparallel to the body frame's z (the one rotation that
+    # `rotation_taking_z_to` cannot build from a cross product).
+    x = rng.uniform(-1, 1, size=(400, 3))
+    cases.append(("half_space3_down", Collider(collider_spec(
+        "half_space", {"point": [0.0, 0.0, 0.3], "normal": [0.0, 0.0, -2.0]}), 3), x,
+        0.3 - x[:, 2], np.tile([0.0, 0.0, -1.0], (len(x), 1))))
     # 2D box turned by 0.3 rad, half extents larger than 1 (deep inside must stay in-plane).
     x = rng.uniform(-4, 4, size=(400, 2))
     R = rot2(0.3)
@@ -431,3 +437,142 @@ def test_prescribed_rigid_motion_is_reproduced_exactly(dim, order):
         rp = x[chosen][p] - (centre0 + v_lin * t)
         want = v_lin + (np.cross(omega, rp) if dim == 3 else omega * np.array([-rp[1], rp[0]]))
         np.testing.assert_allclose(vp, want, atol=1e-13)
+
+
+def rot_z(angle):
+    out = np.eye(3)
+    out[:2, :2] = rot2(angle)
+    return out
+
+
+def test_spin_about_another_axis_than_the_initial_rotation_turns_in_the_world_frame():
+    """R(t) = exp(t [omega]x) R0: the spin acts about a world axis after the initial turn.
+    3D: a box turned about x (R0), spinning about z; 2D: a half-space (R0 takes body z to
+    the in-plane normal) spinning about z, so its normal turns with it. Composing the other
+    way (R0 exp(t [omega]x)) spins about a body axis: the 3D box ends elsewhere and the
+    half-space spins about its own normal, i.e. does not turn at all."""
+    t, angle0, rate = 0.8, 0.4, 1.3
+    box = Collider(collider_spec("box", {"center": [0.2, 0.1, 0.0],
+                                         "half_extents": [0.1, 0.5, 0.1],
+                                         "rotation": [angle0, 0, 0]}, omega=[0, 0, rate]), 3)
+    R = rot_z(rate * t) @ rot_x(angle0)
+    np.testing.assert_allclose(box.rotation(t), R, atol=1e-14)
+    tip = box.position(t) + R @ np.array([0.08, 0.45, 0.0])  # fixed in the body frame
+    np.testing.assert_allclose(box.level_set(tip[None], t)[0], -0.02, atol=1e-14)
+    floor = Collider(collider_spec("half_space", {"point": [0.5, 0.5], "normal": [0.0, 1.0]},
+                                   omega=rate), 2)
+    normal = rot2(rate * t) @ [0.0, 1.0]
+    x = np.array([[0.9, 0.7], [0.1, 0.2], [0.5, 1.5]])
+    phi, n = floor.level_set(x, t)
+    np.testing.assert_allclose(phi, (x - 0.5) @ normal, atol=1e-14)
+    np.testing.assert_allclose(n, np.tile(normal, (3, 1)), atol=1e-14)
+
+
+def test_sticky_cylinder_stops_every_node_inside_it():
+    """An oblique squat cylinder (radius 0.45, half length 0.2) on a 21^3 grid: exactly the
+    nodes with rho <= r and |axial| <= h (written out here) are stopped. The nodes searched
+    must span the radius across the axis too: a search box from the axis segment alone
+    (plus its node of margin) misses the inside nodes more than 0.2 from the centre in x."""
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    c = Collider(collider_spec("cylinder", {"center": [1.0, 1.0, 1.0], "axis": axis * 3,
+                                            "radius": 0.45, "half_length": 0.2}), 3)
+    shape = (21,) * 3
+    v = np.ones(shape + (3,))
+    c.apply(v, np.zeros(3, np.int64), 0.1, np.zeros(3), 0.0, 0.0, np.ones(shape))
+    r = np.stack(np.indices(shape), -1) * 0.1 - 1.0
+    along = r @ axis
+    rho = np.linalg.norm(r - along[..., None] * axis, axis=-1)
+    # Margins of 1e-9 keep nodes within round-off of the surface out of both sets.
+    inside = (rho < 0.45 - 1e-9) & (np.abs(along) < 0.2 - 1e-9)
+    outside = (rho > 0.45 + 1e-9) | (np.abs(along) > 0.2 + 1e-9)
+    assert inside.sum() > 50
+    assert np.all(v[inside] == 0.0)
+    assert np.all(v[outside] == 1.0)
+
+
+@pytest.mark.parametrize("angle", [2.5, -1.2, 4.0])
+def test_sticky_box_at_any_angle_stops_exactly_the_nodes_inside(angle):
+    """A thin 2D box (half extents 0.5 x 0.1) at angles whose rotation has negative entries:
+    the nodes stopped are exactly those inside by the box's own formula (body coordinates
+    |y_a| <= h_a, written out here), whatever the signs of cos and sin."""
+    c = Collider(collider_spec("box", {"center": [1.0, 1.0], "half_extents": [0.5, 0.1],
+                                       "rotation": angle}), 2)
+    shape = (21, 21)
+    v = np.ones(shape + (2,))
+    c.apply(v, np.zeros(2, np.int64), 0.1, np.zeros(2), 0.0, 0.0, np.ones(shape))
+    y = (np.stack(np.indices(shape), -1) * 0.1 - 1.0) @ rot2(angle)  # body frame: R^T r
+    q = np.abs(y) - [0.5, 0.1]
+    inside, outside = np.all(q < -1e-9, axis=-1), np.any(q > 1e-9, axis=-1)  # round-off
+    assert inside.sum() > 10
+    assert np.all(v[inside] == 0.0)
+    assert np.all(v[outside] == 1.0)
+
+
+def test_collider_window_is_judged_at_the_end_of_the_step():
+    """The collider is placed and its window checked at t + dt (`Collider.apply`): a step
+    from 0.95 to 1.05 meets a collider that starts at 1.0, a step from 1.95 to 2.05 does
+    not meet one that ends at 2.0."""
+    spec = collider_spec("sphere", {"center": [0.5, 0.5], "radius": 0.3}, start=1.0, end=2.0)
+    c = Collider(spec, 2)
+    for t, acts in [(0.95, True), (1.95, False)]:
+        v = np.ones((11, 11, 2))
+        c.apply(v, np.zeros(2, np.int64), 0.1, np.zeros(2), t, 0.1)
+        assert (v[5, 5] == 0.0).all() == acts and np.all(v[0, 0] == 1.0)
+
+
+def test_separate_node_at_rest_relative_to_the_obstacle_is_not_constrained():
+    """`constrain` fixes the normal only where the node moves into the obstacle (v.n < 0),
+    the same rule as `project`, which leaves v.n = 0 untouched: a node at rest on a separate
+    floor (v = 0, the start of every resting contact) stays free to lift off."""
+    walls = Walls([face("separate")] * 4, [4, 4])
+    v = np.zeros((6, 6, 2))
+    v[1, 3] = [0.0, -1.0]  # global node (0, 2): on the x-lower wall, sliding along it
+    v[3, 1] = [0.0, -1.0]  # global node (2, 0): on the y-lower wall, moving into it
+    basis = np.zeros((6, 6, 1, 3, 3))
+    count = np.zeros((6, 6, 1), np.int64)
+    walls.constrain(v, np.array([-1, -1]), 0.25, np.zeros(2), 0.0, 0.01, np.ones((6, 6)),
+                    basis, count)
+    c = count[..., 0]
+    assert c[3, 1] == 1 and np.allclose(basis[3, 1, 0, 0], [0.0, 1.0, 0.0])
+    c[3, 1] = 0
+    assert np.all(c == 0), np.argwhere(c)  # every other wall node has v.n = 0
+
+
+def test_prescribed_regions_are_closed_and_the_first_matching_set_wins():
+    """`select` keeps particles exactly on the region's faces (a closed box), and where two
+    regions overlap `mark_prescribed_particles` gives the particle to the earlier set."""
+    from hpcmpm.boundaries import mark_prescribed_particles
+
+    spec = prescribed_spec(2, (), None, None)  # region [0.3, 0.6]^2
+    s = PrescribedSet(spec, 0, 2)
+    x = np.array([[0.3, 0.3], [0.6, 0.6], [0.3, 0.6], [0.45, 0.6], [0.6 + 1e-12, 0.45],
+                  [0.45, 0.3 - 1e-12]])
+    np.testing.assert_array_equal(s.select(x), [True, True, True, True, False, False])
+    second = types.SimpleNamespace(region={"lower": [0.5, 0.5], "upper": [0.9, 0.9]},
+                                   velocity=(), angular_velocity=None, center=None)
+    scene = types.SimpleNamespace(dim=2, prescribed=[spec, second])
+    particles = {"x": np.array([[0.55, 0.55], [0.8, 0.8], [0.1, 0.1], [0.4, 0.4]]),
+                 "prescribed": np.zeros(4, np.int32)}
+    mark_prescribed_particles(scene, particles)
+    np.testing.assert_array_equal(particles["prescribed"], [0, 1, -1, 0])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_prescribed_nodes_are_fixed_in_every_direction(dim):
+    """The semi-implicit mask of a prescribed set: every marked node has all dim directions
+    fixed (the clamp's values come from `apply`), unmarked nodes none."""
+    s = PrescribedSet(prescribed_spec(dim, (), None, None), 0, dim)
+    shape = (5,) * dim
+    marks = np.zeros(shape)
+    marks[(1,) * dim] = 2.0
+    marks[(3,) * dim] = 1.0
+    basis = np.zeros(shape + (1,) * (3 - dim) + (3, 3))
+    count = np.zeros(shape + (1,) * (3 - dim), np.int64)
+    s.constrain(np.zeros(shape + (dim,)), np.zeros(dim, np.int64), 0.1, np.zeros(dim), 0.0,
+                0.01, {s.mark_field: marks}, basis, count)
+    on = (marks > 0).reshape(count.shape)
+    assert np.all(count[on] == dim) and np.all(count[~on] == 0)
+    # The first dim rows span the dim axes: the projector onto them is the identity there.
+    rows = basis[on][:, :dim, :dim]
+    np.testing.assert_array_equal(np.einsum("nki,nkj->nij", rows, rows),
+                                  np.broadcast_to(np.eye(dim), rows.shape))

@@ -63,3 +63,17 @@ def test_provenance_line_says_what_the_chain_is():
     assert provenance(["/s/disks_2d.toml"]) == "run of /s/disks_2d.toml, not restarted"
     assert provenance(["/s/d.toml", "/r/ckpt_000000100.h5", "/r/ckpt_000000200.h5"]) == \
         "run of /s/d.toml, restarted from /r/ckpt_000000100.h5, then /r/ckpt_000000200.h5"
+
+
+def test_info_reports_the_frame_index_version_and_full_time(tmp_path, capsys):
+    """The frame line is the file's frame index (1 for the second frame, at step 10), the
+    version is the one that wrote it, the time keeps 9 significant digits."""
+    import hpcmpm
+
+    path = write_frames(tmp_path, global_particles(2, 10), 2, 1,
+                        times=(0.0, 0.123456789))[1]
+    assert info_command(SimpleNamespace(file=path)) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "frame:       1" in out and "step:        10" in out
+    assert f"version:     hpcmpm {hpcmpm.__version__}" in out
+    assert "time:        0.123456789" in out

@@ -25,3 +25,21 @@ def test_no_eta_while_compiling_then_eta_from_the_first_timed_step(capsys):
     assert meter["elapsed"] < compile_time, meter["elapsed"]
     progress.close()
     assert "compiling" in capsys.readouterr().err  # it was shown to the user
+
+
+def test_rate_counts_the_timed_steps_over_the_timed_wall_time(monkeypatch):
+    """particle-steps/s = particles x steps since the first step / wall time since it, on a
+    clock set by hand: 100 particles, steps 1 -> 11 in 2 s after 30 s of compilation is
+    500, not 100 x 11 / 2 nor 100 x 10 / 32."""
+    from hpcmpm import progress as module
+
+    now = [0.0]
+    monkeypatch.setattr(module.time, "perf_counter", lambda: now[0])
+    bar = Progress(end_time=1.0, n_particles=100)
+    bar.start(0.0, 0)
+    now[0] = 30.0
+    bar.update(0.1, 1, 0.1)  # the first step: compiled, timing starts here
+    now[0] = 32.0
+    bar.update(0.5, 11, 0.04)
+    assert "step 11, dt 0.04, 500 particle-steps/s" in str(bar.bar)
+    bar.close()

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from hpcmpm import startup
 from hpcmpm.geometry import count_scene, estimate_count
 from hpcmpm.scene import load_scene
@@ -118,3 +120,82 @@ def test_start_up_estimate_counts_the_copies_of_volume_averaging():
                        overrides + ['simulation.volume_averaging="none"'])
     difference = startup.particle_bytes(scene) - startup.particle_bytes(plain)
     assert abs(difference - startup.SPARE_FACTOR * 24) <= 1  # int() rounding
+
+
+def fake_files(files):
+    """An ``open`` that serves ``files`` (path -> text) and fails like a missing file."""
+    import io
+
+    def fake_open(path, *args, **kwargs):
+        if str(path) not in files:
+            raise FileNotFoundError(path)
+        return io.StringIO(files[str(path)])
+    return fake_open
+
+
+def test_available_memory_is_the_least_of_the_node_and_the_batch_job(monkeypatch):
+    """MemAvailable (kB) and, under a cgroup v2 limit, the limit less what the job already
+    uses: the smaller one is what this rank can still get."""
+    meminfo = "MemTotal: 33554432 kB\nMemAvailable: 16777216 kB\n"  # 16 GiB available
+    files = {"/proc/meminfo": meminfo, "/sys/fs/cgroup/memory.max": f"{8 * 2**30}\n",
+             "/sys/fs/cgroup/memory.current": f"{3 * 2**30}\n"}
+    monkeypatch.setattr(startup, "open", fake_files(files), raising=False)
+    assert startup.available_memory() == 5 * 2**30  # 8 GiB limit - 3 GiB in use
+    files["/sys/fs/cgroup/memory.max"] = f"{64 * 2**30}\n"  # a limit above the node's room
+    assert startup.available_memory() == 16 * 2**30
+    files["/sys/fs/cgroup/memory.max"] = "max\n"  # no limit
+    assert startup.available_memory() == 16 * 2**30
+    monkeypatch.setattr(startup, "open", fake_files({}), raising=False)
+    assert startup.available_memory() is None  # nothing readable: nothing is refused
+
+
+class NodeOf:
+    """The Communicator verbs `check_memory` uses, for `size` ranks of which `local` share
+    this node, every node alike."""
+
+    def __init__(self, size, local):
+        self.size, self.local = size, local
+
+    def ranks_on_node(self):
+        return self.local
+
+    def max(self, x):
+        return x
+
+    def allgather(self, obj):
+        return [obj] * self.size
+
+
+def test_check_memory_refuses_when_the_ranks_of_a_node_together_do_not_fit(monkeypatch):
+    """One rank's estimate fits in the node's memory, four of them on that node do not: the
+    refusal is about all the ranks sharing the node."""
+    from hpcmpm.errors import SceneError
+
+    scene = load_scene("inputs/disks_2d.toml")
+    per_rank = startup.estimate_memory(scene, 2528, 4, True).per_rank
+    monkeypatch.setattr(startup, "available_memory", lambda: int(2.5 * per_rank))
+    startup.check_memory(scene, NodeOf(4, 1), 2528, True)  # one rank per node: fits
+    with pytest.raises(SceneError, match=r"for 4 rank\(s\)"):
+        startup.check_memory(scene, NodeOf(4, 4), 2528, True)
+
+
+def test_every_process_counts_its_base_size():
+    """Each rank costs BASE_BYTES (interpreter, libraries, kernels) before any particle: a
+    2,528-particle scene on 8 ranks of one node needs more than 8 x 256 MiB, so 1 GiB is
+    refused and 4 GiB is not."""
+    scene = load_scene("inputs/disks_2d.toml")
+    estimate = startup.estimate_memory(scene, 2528, 8, True)
+    assert estimate.per_rank >= startup.BASE_BYTES + 2528 / 8 * estimate.bytes_per_particle
+    assert "8 rank(s)" in startup.memory_problem(scene, estimate, 8, 2**30)
+    assert startup.memory_problem(scene, estimate, 8, 4 * 2**30) is None
+
+
+def test_bond_bytes_are_shared_by_the_ranks():
+    """The peridynamic bonds live with their particles: on P ranks the busiest holds
+    rebalance_threshold / P of them, as it does of the particles."""
+    scene = load_scene("inputs/pd_plate_tear_2d.toml")
+    one = startup.estimate_memory(scene, 1600, 1, True)
+    four = startup.estimate_memory(scene, 1600, 4, True)
+    assert one.side_per_rank > 0
+    factor = scene.parallel.rebalance_threshold / 4
+    assert abs(four.side_per_rank - one.side_per_rank * factor) <= 1  # int() rounding
