@@ -111,21 +111,54 @@ def side_bytes(scene, body_counts) -> tuple[float, str, str]:
             f"materials[{g}].horizon" if bonds else f"materials[{g}]")
 
 
+# Nodes a grid block holds per axis beyond the cells its particles fill: the support below
+# and above (1 + 2, hpcmpm/parallel/domain.py), the cell itself, and the block's reuse margin
+# on both sides (4 + 4, state.GridBlock).
+BLOCK_EXTRA_NODES = 12
+
+
+def grid_values_per_node(scene) -> int:
+    """float64 values a grid node holds at most: the explicit step's mass, momentum and
+    velocity (2 dim + 1) with room for the optional fields (split impulse, prescribed-set
+    marks, volume averaging, SPB's energy and corrections: 5 dim + 2 in all); the
+    semi-implicit solve's Newton and CG vectors besides (13 dim measured in 3D: 14 dim)."""
+    d = scene.dim
+    return 14 * d if scene.integrator == "semi_implicit" else 5 * d + 2
+
+
+def grid_bytes(scene, count: int, ranks: int) -> float:
+    """The busiest rank's grid block: the nodes of its share of the bodies' bounding box
+    (each axis cut into ranks^(1/dim) pieces, plus `BLOCK_EXTRA_NODES`), or twice the cells
+    its particles fill, whichever is more (a block is dense: the empty space between bodies
+    on one rank is held too), times `grid_values_per_node`."""
+    from .scene import body_bounds
+
+    factor = scene.parallel.rebalance_threshold if ranks > 1 else 1.0
+    cells = count / ranks * factor / scene.particles_per_cell ** scene.dim
+    box = 0.0
+    if scene.bodies:
+        lo = np.min([body_bounds(b.shape, b.params, scene.dim)[0] for b in scene.bodies], 0)
+        hi = np.max([body_bounds(b.shape, b.params, scene.dim)[1] for b in scene.bodies], 0)
+        lo = np.maximum(lo, scene.domain_lo)
+        hi = np.minimum(hi, scene.domain_hi)
+        pieces = ranks ** (1.0 / scene.dim)
+        box = factor * float(np.prod(np.ceil(np.maximum(hi - lo, 0.0) / scene.dx / pieces)
+                                     + BLOCK_EXTRA_NODES))
+    return 8.0 * grid_values_per_node(scene) * max(2.0 * cells, box)
+
+
 def estimate_memory(scene, count: int, ranks: int, exact: bool,
                     body_counts=None) -> MemoryEstimate:
     """Bytes per rank for ``count`` particles on ``ranks`` ranks. The busiest rank may hold
     up to ``parallel.rebalance_threshold`` times the mean before a rebalance; the grid block
-    (one node per cell of the rank's particles plus its ghost layer, at most 10 fields) is
-    small beside the particles at 2 or more particles per cell per axis and is included, and
-    so are the bonds of peridynamic bodies (`side_bytes`; ``body_counts``: the particles of
+    (`grid_bytes`) is included, and so are the bonds of peridynamic bodies (`side_bytes`; ``body_counts``: the particles of
     each body, by default ``count`` shared as the bodies' shapes estimate)."""
     from .geometry import estimate_body_counts
 
     per_particle = particle_bytes(scene)
     factor = scene.parallel.rebalance_threshold if ranks > 1 else 1.0
     share = count / ranks * factor
-    cells = share / scene.particles_per_cell ** scene.dim
-    grid = 2.0 * cells * 10 * 8 * scene.dim  # support plus ghosts: at most twice the cells
+    grid = grid_bytes(scene, count, ranks)
     if body_counts is None:
         guess, _ = estimate_body_counts(scene)
         body_counts = np.asarray(guess) * (count / max(sum(guess), 1.0))
