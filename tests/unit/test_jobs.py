@@ -148,9 +148,6 @@ def test_script_writes_in_mpio_mode_when_h5py_has_mpi(tmp_path, has_mpi, mode):
     assert ("serial mode" in proc.stderr) == (not has_mpi)
 
 
-# --- Added by the mutation audit (each failed under a plausible bug the tests above let through).
-
-
 @pytest.mark.parametrize("nodes,ranks_per_node", [(2, 3), (1, 4), (3, 1)])
 def test_pbs_starts_nodes_times_ranks_per_node_ranks(tmp_path, nodes, ranks_per_node):
     proc, calls, _ = _run_with_stubs(tmp_path, "pbs", "mpiexec", 0, nodes=nodes,

@@ -334,10 +334,6 @@ def test_field_values_and_components():
             values(spec)
 
 
-# --- Added by the mutation audit: each test below failed under a plausible bug that every
-# --- test above let through (the bug is named in the docstring).
-
-
 def test_3d_nearer_sphere_hides_the_farther_one():
     """Depth test: a red sphere in front of a larger blue one, on the camera's axis, is what
     the centre of the picture shows (not whichever sphere was drawn last)."""
