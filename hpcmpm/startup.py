@@ -137,10 +137,9 @@ def grid_bytes(scene, count: int, ranks: int) -> float:
     cells = count / ranks * factor / scene.particles_per_cell ** scene.dim
     box = 0.0
     if scene.bodies:
-        lo = np.min([body_bounds(b.shape, b.params, scene.dim)[0] for b in scene.bodies], 0)
-        hi = np.max([body_bounds(b.shape, b.params, scene.dim)[1] for b in scene.bodies], 0)
-        lo = np.maximum(lo, scene.domain_lo)
-        hi = np.minimum(hi, scene.domain_hi)
+        bounds = np.array([body_bounds(b.shape, b.params, scene.dim) for b in scene.bodies])
+        lo = np.maximum(bounds[:, 0].min(axis=0), scene.domain_lo)
+        hi = np.minimum(bounds[:, 1].max(axis=0), scene.domain_hi)
         pieces = ranks ** (1.0 / scene.dim)
         box = factor * float(np.prod(np.ceil(np.maximum(hi - lo, 0.0) / scene.dx / pieces)
                                      + BLOCK_EXTRA_NODES))
@@ -151,8 +150,9 @@ def estimate_memory(scene, count: int, ranks: int, exact: bool,
                     body_counts=None) -> MemoryEstimate:
     """Bytes per rank for ``count`` particles on ``ranks`` ranks. The busiest rank may hold
     up to ``parallel.rebalance_threshold`` times the mean before a rebalance; the grid block
-    (`grid_bytes`) is included, and so are the bonds of peridynamic bodies (`side_bytes`; ``body_counts``: the particles of
-    each body, by default ``count`` shared as the bodies' shapes estimate)."""
+    (`grid_bytes`) is included, and so are the bonds of peridynamic bodies (`side_bytes`;
+    ``body_counts``: the particles of each body, by default ``count`` shared as the bodies'
+    shapes estimate)."""
     from .geometry import estimate_body_counts
 
     per_particle = particle_bytes(scene)

@@ -36,7 +36,7 @@ import math
 import numpy as np
 
 from ..pd.clamp import (NO_CLAMP, NO_FACES, clamp_parameters, faces_within_reach,
-                         sticky_faces)
+                        share_within_reach, sticky_faces)
 from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, family_radius, full_family_sum,
                            half_bonds_per_particle, influence_code)
 from ..pd import moduli
@@ -206,8 +206,8 @@ class Peridynamic(Material):
                      if b.material == self.spec.name]
             self.clamp_faces = faces_within_reach(sticky_faces(scene), boxes,
                                                   self.family_radius())
-            self.ghost_fraction = _fraction_within_reach(self.clamp_faces, boxes,
-                                                         self.family_radius())
+            self.ghost_fraction = share_within_reach(self.clamp_faces, boxes,
+                                                     self.family_radius())
 
     def clamp_array(self) -> np.ndarray:
         """The kernels' clamp parameters (clamp.clamp_parameters); unused without faces."""
@@ -366,20 +366,3 @@ class Peridynamic(Material):
         """0 here: the bond strain energy is the PD extension's (bonds are not particle
         fields), `PDExtension.strain_energy`, which the diagnostics add."""
         return 0.0
-
-
-def _fraction_within_reach(faces: np.ndarray, boxes, reach: float) -> float:
-    """The fraction of the bounding boxes' volume within ``reach`` of one of ``faces``
-    (particles fill a body evenly: the share of them with ghost bonds)."""
-    total = inside = 0.0
-    for lo, hi in boxes:
-        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-        volume = float(np.prod(hi - lo))
-        share = 0.0
-        for axis, plane in faces:
-            a = int(axis)
-            near = min(hi[a], plane + reach) - max(lo[a], plane - reach)
-            share += max(near, 0.0) / (hi[a] - lo[a]) if hi[a] > lo[a] else 1.0
-        total += volume
-        inside += volume * min(share, 1.0)
-    return inside / total if total > 0.0 else 0.0

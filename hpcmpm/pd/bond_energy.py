@@ -67,8 +67,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import (NO_CLAMP, NO_FACES, clamp_reach, ghost_at, ghost_scratch, ghost_shift,
-                    ghost_store, ghost_stretch_sums, near_a_face, near_rows)
+from .clamp import (NO_CLAMP, NO_FACES, attach_ghost_store, clamp_reach, ghost_arrays, ghost_at,
+                    ghost_scratch, ghost_stretch_sums, near_a_face)
 from .correspondence import correspondence_kinematics
 from .families import full_family_sum
 from .geometry import bond_vectors, norm3
@@ -389,9 +389,7 @@ class BondEnergy:
 
     def setup(self, pts) -> None:
         self._declare_state(pts.bonds)
-        if self.ghost_states and pts.ghosts is None:
-            near = near_rows(pts.x0[:pts.n_owned], self.clamp_faces, self.clamp)
-            pts.ghosts = ghost_store(pts.bonds, near, self.ghost_states)
+        attach_ghost_store(pts, self.clamp_faces, self.clamp, self.ghost_states)
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
@@ -420,11 +418,7 @@ class BondEnergy:
         if not len(self.clamp_faces):
             return
         b = pts.bonds
-        if self.ghost_states:
-            mirror = tuple(pts.ghosts.state[k] for k in self.ghost_states)
-            shift = ghost_shift(pts.ghosts, b)
-        else:                           # elastic: no ghost state (never read)
-            mirror, shift = (np.empty(0),), np.empty(0, np.int64)
+        mirror, shift = ghost_arrays(pts, self.ghost_states)    # elastic: none, never read
         bond_energy_clamp_terms(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, self.F,
                                 self.active, self.eiso, self.eiso_image, mirror, shift,
                                 self.beta, self.lam, self.mu, self.psi_p, commit,

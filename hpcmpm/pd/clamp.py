@@ -107,17 +107,6 @@ def face_names(faces: np.ndarray, scene) -> list[str]:
             for axis, plane in faces]
 
 
-def near_rows(x0: np.ndarray, faces: np.ndarray, clamp: np.ndarray) -> np.ndarray:
-    """Mask of the points ``x0`` (n, d) that start within a family radius of one of
-    ``faces``: the test of `near_a_face`, for all rows at once."""
-    near = np.zeros(len(x0), dtype=bool)
-    if len(faces):
-        reach = clamp_reach(clamp)
-        for axis, plane in faces:
-            near |= np.abs(x0[:, int(axis)] - plane) < reach
-    return near
-
-
 def ghost_store(bonds: Bonds, near: np.ndarray, state_names) -> Bonds:
     """The history of the ghost bonds, kept only where there are ghost bonds: a side
     structure in the layout of `Bonds` (it migrates, is realigned and checkpoints as bonds
@@ -141,6 +130,46 @@ def ghost_shift(ghosts: Bonds, bonds: Bonds) -> np.ndarray:
     to its entry in the ghost store (`ghost_store`); meaningless for rows without ghosts,
     whose entries the kernels never read (`near_a_face`)."""
     return ghosts.offsets[:-1] + 1 - bonds.offsets[:-1]
+
+
+def attach_ghost_store(pts, faces: np.ndarray, clamp: np.ndarray, state_names) -> None:
+    """A model's `setup`: the ghost store of the owned points of ``pts`` (integrator.PDPoints)
+    with the states ``state_names``, unless it has none to keep or one came with the points
+    (restored from a checkpoint)."""
+    if state_names and pts.ghosts is None:
+        near = near_rows(pts.x0, pts.n_owned, faces, clamp)
+        pts.ghosts = ghost_store(pts.bonds, near, state_names)
+
+
+NO_GHOST_STATE = (np.empty(0),)
+NO_SHIFT = np.empty(0, np.int64)
+
+
+def ghost_arrays(pts, state_names) -> tuple[tuple, np.ndarray]:
+    """The ghost store's arrays ``state_names`` in that order and the shift to an entry
+    (`ghost_shift`), as the kernels take them; placeholders they never read when the model
+    keeps no ghost state."""
+    if not state_names:
+        return NO_GHOST_STATE, NO_SHIFT
+    return (tuple(pts.ghosts.state[k] for k in state_names),
+            ghost_shift(pts.ghosts, pts.bonds))
+
+
+def share_within_reach(faces: np.ndarray, boxes, reach: float) -> float:
+    """The fraction of the bounding boxes' volume within ``reach`` of one of ``faces``
+    (particles fill a body evenly: the share of them with ghost bonds)."""
+    total = inside = 0.0
+    for lo, hi in boxes:
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        volume = float(np.prod(hi - lo))
+        share = 0.0
+        for axis, plane in faces:
+            a = int(axis)
+            near = min(hi[a], plane + reach) - max(lo[a], plane - reach)
+            share += max(near, 0.0) / (hi[a] - lo[a]) if hi[a] > lo[a] else 1.0
+        total += volume
+        inside += volume * min(share, 1.0)
+    return inside / total if total > 0.0 else 0.0
 
 
 def faces_within_reach(faces: np.ndarray, boxes, reach: float) -> np.ndarray:
@@ -169,6 +198,16 @@ def near_a_face(x0, p, faces, clamp):
         if abs(x0[p, int(faces[fc, 0])] - faces[fc, 1]) < reach:
             return True
     return False
+
+
+@njit(cache=True, error_model="numpy")
+def near_rows(x0, n, faces, clamp):
+    """Mask of the first ``n`` points of ``x0`` that have ghost bonds (`near_a_face`): the
+    rows the ghost store keeps entries for, by the kernels' own test."""
+    out = np.zeros(n, dtype=np.bool_)
+    for p in range(n):
+        out[p] = near_a_face(x0, p, faces, clamp)
+    return out
 
 
 @njit(cache=True, error_model="numpy")

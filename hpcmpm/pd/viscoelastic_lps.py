@@ -60,8 +60,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .clamp import (NO_CLAMP, NO_FACES, ghost_at, ghost_bond, ghost_shift, ghost_store,
-                    image_length, near_a_face, near_rows)
+from .clamp import (NO_CLAMP, NO_FACES, attach_ghost_store, ghost_arrays, ghost_at, ghost_bond,
+                    image_length, near_a_face)
 from .geometry import bond_vectors, norm3
 from .lps import shear_coefficient
 
@@ -91,7 +91,7 @@ def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owne
     """Failure on the total stretch, then m_p = sum w |Y_ref|^2 V_q and the step's dilatation
     increment theta_p = (d/m_p) sum w |Y_ref| (|Y| - |Y_ref|) V_q. With clamping ``faces``
     the sums take p's ghost bonds too, and m_image, theta_image[p, f] are those of p's image
-    across face f (`_ghost_sums`; ``ghost``, ``shift``: the clamp's ghost store, `_ghost`).
+    across face f (`_ghost_sums`; ``ghost``, ``shift``: the clamp's ghost store, clamp.ghost_arrays).
     Returns half-bonds broken."""
     dim = x.shape[1]
     broken = 0
@@ -424,9 +424,7 @@ class ViscoelasticLPS:
 
     def setup(self, pts) -> None:
         self._declare_state(pts.bonds)
-        if self.ghost_states and pts.ghosts is None:
-            near = near_rows(pts.x0[:pts.n_owned], self.clamp_faces, self.clamp)
-            pts.ghosts = ghost_store(pts.bonds, near, self.ghost_states)
+        attach_ghost_store(pts, self.clamp_faces, self.clamp, self.ghost_states)
         self.resize(len(pts.x))
 
     def resize(self, n: int) -> None:
@@ -436,19 +434,11 @@ class ViscoelasticLPS:
             self.m_image = np.zeros((n, len(self.clamp_faces)))
             self.theta_image = np.zeros((n, len(self.clamp_faces)))
 
-    def _ghost(self, pts) -> tuple:
-        """The clamp's ghost-store arrays in the kernels' order (GHOST_PER_FACE a face) and
-        the shift to a ghost source's entry (clamp.ghost_shift)."""
-        if not self.ghost_states:
-            return (np.empty(0),), np.empty(0, np.int64)       # never read
-        return (tuple(pts.ghosts.state[k] for k in self.ghost_states),
-                ghost_shift(pts.ghosts, pts.bonds))
-
     def update_state(self, pts) -> int:
         b = pts.bonds
         self._declare_state(b)          # bonds restored or arrived without the state
         ve_initial_lengths(pts.x0, b.offsets, b.slot, pts.n_owned, b.state["ve_len"])
-        ghost, shift = self._ghost(pts)
+        ghost, shift = ghost_arrays(pts, self.ghost_states)  # GHOST_PER_FACE a face
         if len(self.clamp_faces):
             ve_clamp_initial_lengths(pts.x0, b.offsets, b.slot, b.status, pts.n_owned,
                                      self.clamp_faces, self.clamp, ghost, shift)
@@ -462,7 +452,7 @@ class ViscoelasticLPS:
             raise RuntimeError("viscoelastic_lps: the driver must set model.dt before forces")
         decay, gain = self.relaxation(self.dt) if self.memory == "maxwell" else (1.0, 1.0)
         b = pts.bonds
-        ghost, shift = self._ghost(pts)
+        ghost, shift = ghost_arrays(pts, self.ghost_states)  # GHOST_PER_FACE a face
         ve_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
                   b.state["ve_len"], b.state["ve_iso"], b.state["ve_dev"], self.m,
                   self.theta, self.kappa, self.mu, decay, gain, self.memory == "none",

@@ -49,8 +49,8 @@ def test_ghost_store_follows_its_particles_across_ranks():
         sim.ensure_grouped()
         start, stop = ext.prepare()
         assert np.array_equal(ext.bond_ids, sim.particles["id"][start:stop])
-        near = near_rows(sim.particles["x0"][start:stop], ext.model.clamp_faces,
-                         ext.model.clamp)
+        near = near_rows(sim.particles["x0"][start:stop], stop - start,
+                         ext.model.clamp_faces, ext.model.clamp)
         counts = ext.ghosts.counts()
         assert ext.ghosts.n == stop - start
         assert np.array_equal(counts, np.where(near, ext.bonds.counts() + 1, 0))

@@ -260,7 +260,7 @@ def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, sta
     assert ghosts.resident_bytes_per_bond() == 21 + 8 * ghost_states
     # Entries exactly for the particles within reach, one per half-bond and one own.
     start, stop = ext._rows()
-    near = near_rows(sim.particles["x0"][start:stop], material.clamp_faces,
+    near = near_rows(sim.particles["x0"][start:stop], stop - start, material.clamp_faces,
                      material.clamp_array())
     counts = ghosts.counts()
     assert 0 < near.sum() < len(near)
