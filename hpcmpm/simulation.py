@@ -148,7 +148,7 @@ class Simulation:
         self._on_grid = [g for g, m in enumerate(self.materials) if m.on_grid]
         self._all_on_grid = len(self._on_grid) == len(self.materials)
         self._state_groups = [g for g in self._on_grid
-                              if self.deformation == "L" or self.materials[g].updates_state]
+                              if self.deformation == "L" or self.materials[g].updates_state(self.deformation)]
         # simulation.volume_averaging = "increment": the materials whose change of J over
         # each step is averaged through the grid (`remember_volumes`, `average_volumes`);
         # none by default, and then no grid field, scratch array or phase exists for it.

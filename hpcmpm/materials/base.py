@@ -114,10 +114,10 @@ class Material:
     def volumetric(self) -> bool:
         return self.deformation == "J"
 
-    @property
-    def updates_state(self) -> bool:
-        """Whether `update_state` does any work outside mode "L" (the step skips it
-        otherwise, so an elastic scene pays nothing for the phase)."""
+    def updates_state(self, deformation: str) -> bool:
+        """Whether `update_state` does any work in the scene's ``deformation`` mode outside
+        mode "L" (the step skips it otherwise, so an elastic scene pays nothing for the
+        phase)."""
         cls = type(self)
         return cls.update_state is not Material.update_state or \
             cls.return_map is not Material.return_map

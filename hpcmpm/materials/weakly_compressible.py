@@ -138,6 +138,11 @@ class WeaklyCompressible(Material):
         not mode F, where it carries F = J^(1/d) I beside an F-based material."""
         return deformation in ("J", "L")
 
+    def updates_state(self, deformation: str) -> bool:
+        """Only where the scene carries F (mode "F"): the return map resets it, and a J-only
+        scene has nothing to project."""
+        return deformation == "F"
+
     def return_map(self, fields, dt: float) -> None:
         """In a scene that carries F, reset F to J^(1/d) I after G2P advanced it."""
         if "F" in fields:

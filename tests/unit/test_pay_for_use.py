@@ -57,6 +57,8 @@ def test_a_fluid_only_scene_carries_J_instead_of_F_and_matches_the_F_path(monkey
     fluid = simulate(scene)
     assert set(fluid.particles.field_names()) == {"id", "group", "x", "v", "mass", "vol0", "J",
                                                    "C"}
+    # Its return map only resets F, which a J-only scene does not carry: no state phase.
+    assert "state" not in fluid.timers.calls
     monkeypatch.setattr(simulation, "deformation_mode", lambda materials, needs_L=False: "F")
     reference = simulate(scene)
     assert "F" in reference.particles and "J" not in reference.particles
@@ -111,6 +113,7 @@ radius = 0.1
     sim = simulate(parse_scene(text, path="<fluid and solid>"), end_time=0.05)
     p = sim.particles
     assert "F" in p and "J" not in p
+    assert sim.timers.calls["state"] >= sim.step_index > 5
     water = p["group"] == 0
     assert water.any() and (~water).any()
     F, C = p["F"][water], p["C"][water]
