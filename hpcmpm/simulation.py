@@ -147,6 +147,11 @@ class Simulation:
         # after G2P (every on-grid material in mode L): an elastic scene has none.
         self._on_grid = [g for g, m in enumerate(self.materials) if m.on_grid]
         self._all_on_grid = len(self._on_grid) == len(self.materials)
+        # A scene of off-grid peridynamic bodies only (integration = "pd") has nothing on the
+        # grid: the integrators then skip every grid phase and no block is ever allocated
+        # (the bodies move in their extension's after_g2p, walls and prescribed sets act per
+        # particle there: pd/extension.py, pd/boundary.py).
+        self.uses_grid = bool(self._on_grid)
         self._state_groups = [g for g in self._on_grid
                               if self.deformation == "L" or self.materials[g].updates_state(self.deformation)]
         # simulation.volume_averaging = "increment": the materials whose change of J over

@@ -20,6 +20,14 @@ class ExplicitIntegrator:
         sim.sort_phase()
         if sim.forcing is not None:
             sim.forcing(sim, dt)  # body force as a particle impulse (manufactured solutions)
+        if sim.uses_grid:  # else off-grid peridynamic bodies only (Simulation.uses_grid)
+            self.grid_step(sim, dt)
+        sim.after_g2p(dt)  # extensions (peridynamic bodies, 003 Alg. 2)
+        sim.migrate()
+
+    @staticmethod
+    def grid_step(sim, dt: float) -> None:
+        """The step's grid part: stress and P2G, the grid update, G2P and the state update."""
         sim.fit_grid()
         sim.scatter_stress(dt)  # per chunk: Kirchhoff stress, then P2G of m, mv, dt f (eq. 3.1)
         sim.scatter_forces(dt)  # extensions' particle forces (integral-based MPM, 003 eq. 5.2)
@@ -30,8 +38,6 @@ class ExplicitIntegrator:
         sim.gather(dt)  # v, C, x <- x + dt v; F <- (I + dt L) F, or L stored (eq. 3.7)
         sim.update_states(dt)  # plastic return maps, rate-dependent state over this dt
         sim.average_volumes()  # volume_averaging: the step's change of J, grid-averaged
-        sim.after_g2p(dt)  # extensions (peridynamic bodies, 003 Alg. 2)
-        sim.migrate()
 
     @staticmethod
     def scratch_bytes_per_particle(dim: int) -> int:

@@ -141,6 +141,13 @@ class SemiImplicitIntegrator:
         sim.sort_phase()
         if sim.forcing is not None:
             sim.forcing(sim, dt)
+        if sim.uses_grid:  # else off-grid peridynamic bodies only (Simulation.uses_grid)
+            self.grid_step(sim, dt)
+        sim.after_g2p(dt)
+        sim.migrate()
+
+    def grid_step(self, sim, dt: float) -> None:
+        """The step's grid part: P2G, the solve, G2P and the state update."""
         sim.fit_grid()
         sim.scatter_mass_momentum()  # m_i, m_i v_i^n (000 §3.4); no stress: the solve has it
         sim.scatter_forces(dt)  # extensions' particle forces, explicit
@@ -151,8 +158,6 @@ class SemiImplicitIntegrator:
         sim.gather(dt)  # v, C, x <- x + dt v; L_p = sum_i v_i grad w_ip^T stored
         sim.update_states(dt)  # b_E / F from L over dt, plastic flow with the same L
         sim.average_volumes()  # volume_averaging: the step's change of J, grid-averaged
-        sim.after_g2p(dt)
-        sim.migrate()
 
     @staticmethod
     def scratch_bytes_per_particle(dim: int) -> int:

@@ -124,3 +124,30 @@ radius = 0.1
     assert np.abs(C[:, 0, 1]).max() > 0.0 and np.abs(C[:, 1, 0]).max() > 0.0
     assert np.all(F[:, 0, 1] == 0.0) and np.all(F[:, 1, 0] == 0.0)
     assert np.all(F[:, 0, 0] == F[:, 1, 1])
+
+
+def test_off_grid_peridynamic_bodies_alone_run_no_grid_phase(monkeypatch):
+    """Kalthoff-Winkler's plate is off-grid PD with a prescribed impactor (imposed per
+    particle, pd/boundary.py): nothing is on the grid, so no block is allocated and no grid
+    phase runs, and the run is bit for bit the one that still makes the (empty) grid pass."""
+    from hpcmpm.simulation import Simulation
+
+    scene = load_scene("inputs/kalthoff_winkler_2d.toml", ["simulation.end_time=1e-5"])
+    alone = simulate(scene)
+    assert alone.step_index > 10 and alone.grid.nbytes() == 0
+    assert not {"p2g", "grid", "halo", "g2p", "state"} & set(alone.timers.calls)
+    original = Simulation.__init__
+
+    def with_grid(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        self.uses_grid = True
+
+    monkeypatch.setattr(Simulation, "__init__", with_grid)
+    gridded = simulate(scene)
+    assert gridded.grid.nbytes() > 0 and gridded.timers.calls["p2g"] >= gridded.step_index
+    a = np.argsort(alone.particles["id"])
+    b = np.argsort(gridded.particles["id"])
+    assert np.array_equal(alone.particles["x"][a], gridded.particles["x"][b])
+    assert np.array_equal(alone.particles["v"][a], gridded.particles["v"][b])
+    moved = np.abs(alone.particles["v"]).max()
+    assert moved >= 16.0  # the impactor's speed reached the plate: not a run at rest

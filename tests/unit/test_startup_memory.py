@@ -226,3 +226,23 @@ def test_grid_estimate_holds_the_block_a_step_allocates(scene, sets):
     # At most 4x: the allowance takes the bodies' bounding box with the whole reuse margin,
     # and room for optional fields these scenes do not declare (measured 1.3x-2.7x).
     assert held <= allowance <= 4 * held
+
+
+def test_off_grid_peridynamic_bodies_alone_are_estimated_without_a_grid_block():
+    """A scene whose bodies are all off-grid PD (integration = "pd") allocates no grid block
+    (`Simulation.uses_grid`), and the estimate prices none; pd_jelly_stretch_3d, whose
+    grippers are on the grid, keeps its block in both."""
+    from hpcmpm.parallel import Communicator
+    from hpcmpm.runner import initial_particles, make_domain
+    from hpcmpm.simulation import Simulation
+
+    for scene, on_grid in (("inputs/kalthoff_winkler_2d.toml", False),
+                           ("inputs/pd_jelly_stretch_3d.toml", True)):
+        sc = load_scene(scene)
+        sim = Simulation(sc, make_domain(sc, Communicator()))
+        initial_particles(sim)
+        sim.step(sim.stable_dt())
+        allowance = startup.grid_bytes(sc, sim.particles.n, 1)
+        assert sim.uses_grid is on_grid
+        assert (sim.grid.nbytes() > 0) is on_grid, scene
+        assert (allowance > 0) is on_grid, scene
