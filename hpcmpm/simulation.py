@@ -52,6 +52,15 @@ def deformation_fields(materials, mode: str) -> dict[str, FieldSpec]:
     return specs
 
 
+def grid_in_use(scene, materials) -> bool:
+    """Whether a body of the scene is made of a material the grid carries (`Material.on_grid`).
+    A scene without bodies, whose particles the caller gives (benchmarks, tests), counts
+    every material."""
+    used = {scene.material_index(b.material) for b in scene.bodies} if scene.bodies else \
+        range(len(materials))
+    return any(materials[g].on_grid for g in used)
+
+
 def configured_materials(scene, dim: int) -> list[Material]:
     """The scene's materials, made and configured against the scene; a problem only the whole
     scene shows (a horizon below the spacing, a material named by another that is not there)
@@ -147,11 +156,12 @@ class Simulation:
         # after G2P (every on-grid material in mode L): an elastic scene has none.
         self._on_grid = [g for g, m in enumerate(self.materials) if m.on_grid]
         self._all_on_grid = len(self._on_grid) == len(self.materials)
-        # A scene of off-grid peridynamic bodies only (integration = "pd") has nothing on the
-        # grid: the integrators then skip every grid phase and no block is ever allocated
-        # (the bodies move in their extension's after_g2p, walls and prescribed sets act per
-        # particle there: pd/extension.py, pd/boundary.py).
-        self.uses_grid = bool(self._on_grid)
+        # A scene whose bodies are all off-grid peridynamic ones (integration = "pd"; an
+        # on-grid material may still be there as a correspondence body's stress model) has
+        # nothing on the grid: the integrators then skip every grid phase and no block is
+        # ever allocated (the bodies move in their extension's after_g2p, walls and
+        # prescribed sets act per particle there: pd/extension.py, pd/boundary.py).
+        self.uses_grid = grid_in_use(scene, self.materials)
         self._state_groups = [g for g in self._on_grid
                               if self.deformation == "L" or self.materials[g].updates_state(self.deformation)]
         # simulation.volume_averaging = "increment": the materials whose change of J over

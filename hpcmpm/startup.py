@@ -132,10 +132,9 @@ def grid_bytes(scene, count: int, ranks: int) -> float:
     its particles fill, whichever is more (a block is dense: the empty space between bodies
     on one rank is held too), times `grid_values_per_node`."""
     from .scene import body_bounds
-    from .simulation import configured_materials
+    from .simulation import configured_materials, grid_in_use
 
-    materials = configured_materials(scene, scene.dim)
-    if scene.bodies and not any(m.on_grid for m in materials):
+    if not grid_in_use(scene, configured_materials(scene, scene.dim)):
         return 0.0  # off-grid peridynamic bodies only: no block (Simulation.uses_grid)
     factor = scene.parallel.rebalance_threshold if ranks > 1 else 1.0
     cells = count / ranks * factor / scene.particles_per_cell ** scene.dim

@@ -230,14 +230,16 @@ def test_grid_estimate_holds_the_block_a_step_allocates(scene, sets):
 
 def test_off_grid_peridynamic_bodies_alone_are_estimated_without_a_grid_block():
     """A scene whose bodies are all off-grid PD (integration = "pd") allocates no grid block
-    (`Simulation.uses_grid`), and the estimate prices none; pd_jelly_stretch_3d, whose
-    grippers are on the grid, keeps its block in both."""
+    (`Simulation.uses_grid`), and the estimate prices none: Kalthoff-Winkler's plate, and
+    the jelly figure whose on-grid material is only its correspondence stress model. The
+    integral-based MPM bar (integration = "grid") keeps its block in both."""
     from hpcmpm.parallel import Communicator
     from hpcmpm.runner import initial_particles, make_domain
     from hpcmpm.simulation import Simulation
 
     for scene, on_grid in (("inputs/kalthoff_winkler_2d.toml", False),
-                           ("inputs/pd_jelly_stretch_3d.toml", True)):
+                           ("inputs/pd_jelly_stretch_3d.toml", False),
+                           ("inputs/ibmpm_bar_2d.toml", True)):
         sc = load_scene(scene)
         sim = Simulation(sc, make_domain(sc, Communicator()))
         initial_particles(sim)
