@@ -58,7 +58,7 @@ def parse_wall_time(text: str | None) -> float | None:
     seconds = 0.0
     for part in parts:
         seconds = seconds * 60.0 + part
-    if not math.isfinite(seconds) or seconds <= 0 or len(parts) > 3:
+    if not math.isfinite(seconds) or seconds <= 0 or len(parts) > 3 or min(parts) < 0:
         raise SceneError(f"--checkpoint-wall: expected a positive HH:MM:SS, got {text!r}")
     return seconds
 
@@ -275,10 +275,14 @@ def check_options(args) -> None:
 def output_dir_problems(out_dir: Path) -> list[str]:
     """Why ``out_dir`` cannot be an output folder (a file, or under a file), or nothing."""
     for path in (out_dir, *out_dir.parents):
-        if path.exists() and not path.is_dir():
+        try:
+            exists = path.exists()  # raises for a name too long, for one
+        except OSError as exc:
+            return [f"--out: cannot create {out_dir}: {exc.strerror or exc}"]
+        if exists and not path.is_dir():
             what = "is" if path == out_dir else f"lies under {path}, which is"
             return [f"--out: {out_dir} {what} a file, not a folder"]
-        if path.exists():
+        if exists:
             break
     return []
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -425,7 +426,8 @@ def _simulation(c: Checker, raw: dict) -> dict:
     out["transfer"] = c.string(sim, "transfer", p, "mls", TRANSFERS)
     out["flip_alpha"] = c.number(sim, "flip_alpha", p, 0.95, low=0.0, high=1.0, low_open=False)
     out["cfl"] = c.number(sim, "cfl", p, 0.4, low=0.0, high=2.0)
-    out["dt"] = c.number(sim, "dt", p, None, low=0.0)
+    # high=inf: finite (an infinite fixed step is no step)
+    out["dt"] = c.number(sim, "dt", p, None, low=0.0, high=math.inf)
     out["max_dt"] = c.number(sim, "max_dt", p, None, low=0.0)
     out["end_time"] = c.number(sim, "end_time", p, low=0.0)
     out["gravity"] = c.vector(sim, "gravity", p, dim, (0.0,) * dim) if dim else None
@@ -659,7 +661,8 @@ def _bodies(c: Checker, raw: dict, dim, materials, lo, hi, base_dir: Path) -> tu
         velocity = c.vector(b, "velocity", p, dim, (0.0,) * dim)
         angular = c.angular(b, "angular_velocity", p, dim)
         jitter = c.number(b, "jitter", p, 0.0, low=0.0, high=1.0, low_open=False)
-        seed = c.number(b, "seed", p, 0, integer=True)
+        # >= 0: numpy's PCG64 refuses a negative seed
+        seed = c.number(b, "seed", p, 0, low=0, low_open=False, integer=True)
         vfield = _velocity_field(c, b, p, dim)
         if params is not None and lo and hi:
             blo, bhi = body_bounds(shape, params, dim)
@@ -815,6 +818,8 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
         for key in ("normal", "axis"):
             if key in params and not any(params[key]):
                 c.problem(f"{p}.{key}", "must be a nonzero vector")
+        if end < start:
+            c.problem(f"{p}.end", f"must be >= start ({start:g}), got {end:g}")
         out.append(ColliderSpec(name, shape, params, cond, friction,
                                 velocity, angular, start, end))
     return tuple(out)
@@ -861,6 +866,11 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
         raise SceneError(f"{file}: TOML syntax error: {exc}") from None
     c = Checker(file)
     c.problems.extend(apply_overrides(raw, overrides, file, c.origins))
+    long_integers = _long_integers(raw)
+    for where in long_integers:
+        c.problem(where, "integer too large (beyond the range of a float64)")
+    if long_integers:
+        raise SceneError(c.problems)  # the checks below would fail converting it to float
     c.keys(raw, "", TOP_KEYS)
     base_dir = base_dir or (Path(path).parent if path != "<string>" else Path("."))
     sim = _simulation(c, raw)
@@ -890,6 +900,20 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     if c.problems:
         raise SceneError(c.problems)
     return scene
+
+
+def _long_integers(node, path: str = "") -> list[str]:
+    """The paths (as the Checker writes them) of integers too large for a float64 (tomllib
+    reads integers of any size; every check converts numbers to float, which would overflow);
+    a number in an array is reported at the array's key."""
+    if isinstance(node, dict):
+        return [w for key, value in node.items() for w in _long_integers(value, _join(path, key))]
+    if isinstance(node, list):
+        found = [w for i, value in enumerate(node) for w in _long_integers(value, f"{path}[{i}]")]
+        return [path] if found and not any(isinstance(v, (dict, list)) for v in node) else found
+    if isinstance(node, int) and not isinstance(node, bool) and abs(node) > sys.float_info.max:
+        return [path]
+    return []
 
 
 def _check_materials_in_scene(c: Checker, scene: Scene) -> None:

@@ -72,13 +72,11 @@ POISSON = Param(-1.0, 0.5, doc="Poisson ratio nu (dimensionless)")
 
 
 def _number(value: Any) -> float | None:
-    if isinstance(value, bool):
+    # A TOML integer or float only: a quoted number ("2e6") is a string, as in the scene's
+    # own keys (float() would read it), and bool is not a number.
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        return None
-    return x
+    return float(value)
 
 
 # The keys of a [[materials]] table that the scene reads itself (scene.py) before a model's

@@ -116,6 +116,20 @@ def test_main_maps_errors_and_interrupts_to_exit_codes(capsys, monkeypatch):
     assert cli.main(["info", "x.h5"]) == 130
 
 
+def test_an_error_without_a_message_still_prints_a_line(capsys, monkeypatch):
+    """An HpcmpmError with an empty message is told by its type: an exit code is never the
+    only trace of an error."""
+    from hpcmpm import cli
+    from hpcmpm.errors import CheckpointError
+
+    def fail(args):
+        raise CheckpointError("")
+
+    monkeypatch.setattr(cli, "_info", fail)
+    assert cli.main(["info", "x.h5"]) == 4
+    assert capsys.readouterr().err.splitlines() == ["hpcmpm: error: CheckpointError"]
+
+
 def test_rank_comes_from_the_launcher_environment(monkeypatch):
     from hpcmpm import cli
 

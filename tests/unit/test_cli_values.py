@@ -32,6 +32,15 @@ BAD_RUN_OPTIONS = {
                             "--checkpoint-wall: expected a positive HH:MM:SS, got 'nan'"),
     "checkpoint_wall_zero": (["--checkpoint-wall", "00:00:00"],
                              "--checkpoint-wall: expected a positive HH:MM:SS, got '00:00:00'"),
+    "checkpoint_wall_text": (["--checkpoint-wall", "1h"],
+                             "--checkpoint-wall: expected HH:MM:SS, got '1h'"),
+    "checkpoint_wall_four_fields": (["--checkpoint-wall", "1:00:00:00"],
+                                    "--checkpoint-wall: expected a positive HH:MM:SS, got "
+                                    "'1:00:00:00'"),
+    # A negative field was added in (01:-30:00 was half an hour).
+    "checkpoint_wall_negative_field": (["--checkpoint-wall", "01:-30:00"],
+                                       "--checkpoint-wall: expected a positive HH:MM:SS, got "
+                                       "'01:-30:00'"),
 }
 
 
@@ -52,6 +61,20 @@ def test_out_that_is_a_file_is_one_line_exit_2(tmp_path, capsys):
         what = "is" if out == target else f"lies under {target}, which is"
         assert error_lines(capsys) == [f"hpcmpm: error: --out: {out} {what} a file, not a folder"]
     assert target.read_text() == "not a folder"
+
+
+def test_out_that_cannot_be_created_is_one_line_exit_2(tmp_path, capsys):
+    """An --out the system refuses is one line naming it and the system's reason, exit 2:
+    a folder name too long (the check of the options: was an OSError traceback) and a folder
+    that mkdir cannot make (/proc takes none)."""
+    too_long = tmp_path / ("x" * 300) / "run"
+    assert cli.main(["run", BAR, "--out", str(too_long), "--quiet"]) == 2
+    assert error_lines(capsys) == [f"hpcmpm: error: --out: cannot create {too_long}: "
+                                   f"File name too long"]
+    if Path("/proc").is_dir():
+        assert cli.main(["run", BAR, "--out", "/proc/hpcmpm_run", "--quiet"]) == 2
+        (line,) = error_lines(capsys)
+        assert line.startswith("hpcmpm: error: --out: cannot create /proc/hpcmpm_run: "), line
 
 
 @pytest.fixture(scope="module")

@@ -136,6 +136,97 @@ CASES = {
                                   + 'x_upper = { condition = "sticky" }\n',
                                   "walls.x_upper: axis 'x' is periodic (simulation.periodic): "
                                   "its faces are not walls; remove walls.x_upper or the axis"),
+    "unknown_key_without_a_close_match": (GOOD.replace("every = 0.1", "every = 0.1\nbogus = 1"),
+                                          "output.bogus: unknown key (allowed: every, fields, "
+                                          "checkpoint_every, checkpoint_keep)"),
+    "dim_one": (GOOD.replace("dim = 2", "dim = 1"), "simulation.dim: must be 2 or 3, got int 1"),
+    "wrong_type_bool": (GOOD.replace("cfl = 0.4", "cfl = true"),
+                        "simulation.cfl: must be a number, got boolean true"),
+    "bool_in_vector": (GOOD.replace("velocity = [0.1, 0.1]", "velocity = [true, 0.1]"),
+                       "bodies[0].velocity: must be an array of 2 numbers, got an array"),
+    "vector_not_finite": (GOOD.replace("velocity = [0.1, 0.1]", "velocity = [nan, 0.1]"),
+                          "bodies[0].velocity: must be finite, got [nan, 0.1]"),
+    "density_infinite": (GOOD.replace("density = 1000.0", "density = inf"),
+                         "materials[0].density: must be finite, got inf"),
+    "material_param_bool": (GOOD.replace("E = 1000.0", "E = true"),
+                            "materials[0].E: must be a number, got boolean true"),
+    # A quoted number is a string, as for the scene's own keys (it was read as 1000).
+    "material_param_quoted_number": (GOOD.replace("E = 1000.0", 'E = "1000"'),
+                                     "materials[0].E: must be a number, got string '1000'"),
+    "material_param_infinite": (GOOD.replace("E = 1000.0", "E = inf"),
+                                "materials[0].E: must be finite, got inf"),
+    "material_param_nan": (GOOD.replace("E = 1000.0", "E = nan"),
+                           "materials[0].E: must be a number, got float nan"),
+    # An integer beyond a float64 (tomllib reads any size) was an OverflowError traceback.
+    "integer_too_large": (GOOD.replace("E = 1000.0", "E = 1" + "0" * 400),
+                          "materials[0].E: integer too large (beyond the range of a float64)"),
+    # A combination the model's constructor refuses is told at its [[materials]] entry.
+    "material_refused_by_its_model": (GOOD.replace('type = "neo_hookean"', 'type = "j2"').replace(
+        "nu = 0.3", 'nu = 0.3\nspecific_heat = 400.0\nhardening = { type = "johnson_cook", '
+                    "A = 1.0, T_melt = 200.0 }"),
+        "materials[0]: material 'rubber' (j2): hardening.T_melt: must be > T_room = 293, "
+        "got 200"),
+    "dt_negative": (GOOD.replace("cfl = 0.4", "cfl = 0.4\ndt = -0.01"),
+                    "simulation.dt: must be > 0.0, got -0.01"),
+    # An infinite fixed step passed validation and blew up at the first step (exit 3).
+    "dt_infinite": (GOOD.replace("cfl = 0.4", "cfl = 0.4\ndt = inf"),
+                    "simulation.dt: must be finite, got inf"),
+    "periodic_axis_with_a_lower_wall": (GOOD.replace("cfl = 0.4", 'cfl = 0.4\nperiodic = ["y"]')
+                                        + 'y_lower = { condition = "slip" }\n',
+                                        "walls.y_lower: axis 'y' is periodic (simulation."
+                                        "periodic): its faces are not walls; remove "
+                                        "walls.y_lower or the axis"),
+    "periodic_not_names": (GOOD.replace("cfl = 0.4", "cfl = 0.4\nperiodic = [0]"),
+                           "simulation.periodic: must be an array of axis names, got an array"),
+    "checkpoint_keep": (GOOD.replace("every = 0.1", "every = 0.1\ncheckpoint_keep = 0"),
+                        "output.checkpoint_keep: must be >= 1, got 0"),
+    "rebalance_threshold": (GOOD + "[parallel]\nrebalance_threshold = 1.0\n",
+                            "parallel.rebalance_threshold: must be > 1.0, got 1.0"),
+    "solver_tolerance_one": (GOOD + "[solver]\ntolerance = 1.0\n",
+                             "solver.tolerance: must be < 1.0, got 1.0"),
+    "solver_max_iterations_float": (GOOD + "[solver]\nmax_iterations = 100.5\n",
+                                    "solver.max_iterations: must be an integer, got float 100.5"),
+    "duplicate_material": (GOOD.replace("[[bodies]]", '[[materials]]\nname = "rubber"\ntype = '
+                                        '"neo_hookean"\ndensity = 1.0\nE = 1.0\nnu = 0.3\n\n'
+                                        "[[bodies]]", 1),
+                           "materials[1].name: duplicate material name 'rubber'"),
+    "box_flat": (GOOD.replace(SPHERE_0, 'shape = "box"\nlower = [0.1, 0.1]\nupper = [0.4, 0.1]'),
+                 "bodies[0].upper: must exceed lower in every component"),
+    "sphere_radius": (GOOD.replace("radius = 0.2", "radius = -0.2", 1),
+                      "bodies[0].radius: must be > 0.0, got -0.2"),
+    "velocity_field_axis": (GOOD.replace("velocity = [0.1, 0.1]", 'velocity_field = { type = '
+                                         '"axial_mode", amplitude = 1.0, length = 1.0, '
+                                         "axis = 2 }"),
+                            "bodies[0].velocity_field.axis: must be <= 1, got 2"),
+    "jitter_above_one": (GOOD.replace("velocity = [0.1, 0.1]", "jitter = 1.5"),
+                         "bodies[0].jitter: must be <= 1.0, got 1.5"),
+    # numpy's generator refuses a negative seed: it was a traceback when the body was sampled.
+    "seed_negative": (GOOD.replace("velocity = [0.1, 0.1]", "jitter = 0.1\nseed = -1"),
+                      "bodies[0].seed: must be >= 0, got -1"),
+    "walls_friction": (GOOD + "friction = -0.1\n", "walls.friction: must be >= 0.0, got -0.1"),
+    "wall_face_friction": (GOOD + "x_lower = { friction = -0.1 }\n",
+                           "walls.x_lower.friction: must be >= 0.0, got -0.1"),
+    "collider_friction": (GOOD + '[[colliders]]\nshape = "sphere"\ncenter = [0.5, 0.5]\n'
+                                 "radius = 0.1\nfriction = -0.5\n",
+                          "colliders[0].friction: must be >= 0.0, got -0.5"),
+    "collider_half_extents": (GOOD + '[[colliders]]\nshape = "box"\ncenter = [0.5, 0.5]\n'
+                                     "half_extents = [0.1, 0.0]\n",
+                              "colliders[0].half_extents: components must be > 0, got "
+                              "[0.1, 0.0]"),
+    "collider_start": (GOOD + '[[colliders]]\nshape = "sphere"\ncenter = [0.5, 0.5]\n'
+                              "radius = 0.1\nstart = -1.0\n",
+                       "colliders[0].start: must be >= 0.0, got -1.0"),
+    # A collider whose window ends before it starts never acts: it was accepted silently.
+    "collider_end_before_start": (GOOD + '[[colliders]]\nshape = "sphere"\ncenter = [0.5, 0.5]'
+                                         "\nradius = 0.1\nstart = 2.0\nend = 1.0\n",
+                                  "colliders[0].end: must be >= start (2), got 1"),
+    "cylinder_collider_in_2d": (GOOD + '[[colliders]]\nshape = "cylinder"\ncenter = [0.5, 0.5]'
+                                       "\naxis = [1.0, 0.0]\nradius = 0.1\nhalf_length = 0.1\n",
+                                "colliders[0].shape: cylinder colliders need dim = 3"),
+    "prescribed_flat_region": (GOOD + "[[prescribed]]\nregion = { lower = [0.5, 0.5], upper = "
+                                      "[0.6, 0.5] }\n",
+                               "prescribed[0].region.upper: must exceed region.lower in every "
+                               "component"),
     # The line of "dim = 2" in the scene file (its header may grow), 1-based as TOML counts.
     "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"),
                     "TOML syntax error: Invalid value (at line "
@@ -161,6 +252,15 @@ def test_three_dimensional_mistakes():
     assert lines == ["scene.toml: colliders[0].angular_velocity: must be an array of 3 "
                      "numbers, got float 1.0"]
 
+
+def test_cylinder_body_needs_a_nonzero_axis():
+    """A cylinder body with a zero axis is one line at its axis (its bounds would divide by
+    the axis length)."""
+    lines = problems(GOOD_3D.replace('shape = "box"\nlower = [0.3, 0.3, 0.0]\nupper = [0.7, 0.7, '
+                                     '0.25]', 'shape = "cylinder"\ncenter = [0.5, 0.5, 0.2]\n'
+                                              'axis = [0.0, 0.0, 0.0]\nradius = 0.1\n'
+                                              'length = 0.2'))
+    assert lines == ["scene.toml: bodies[0].axis: must be a nonzero vector"]
 
 def test_every_problem_in_a_file_is_reported_in_file_order():
     text = (GOOD.replace("cfl = 0.4", "cfl = -1.0").replace('kernel = "quadratic"', 'kernl = 1')
@@ -204,6 +304,13 @@ def test_bad_overrides_are_reported_like_file_problems():
     ]
 
 
+def test_set_index_one_past_the_end_and_an_empty_key_are_reported():
+    """``--set bodies.2...`` with two bodies names the count (not an IndexError), and
+    ``--set =5`` has no key."""
+    assert problems(GOOD, ["bodies.2.velocity=[0.0, 0.0]", "=5"]) == [
+        "scene.toml: --set bodies.2.velocity: no entry 2 (bodies has 2)",
+        "scene.toml: --set =5: expected key.path=value"]
+
 def test_load_scene_reports_the_path_and_a_missing_file(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(GOOD.replace("dx = 0.02", "dx = 0.0"))
@@ -214,6 +321,17 @@ def test_load_scene_reports_the_path_and_a_missing_file(tmp_path):
         load_scene("no/such.toml")
     assert SceneError.exit_code == 2
 
+
+def test_load_scene_reports_a_file_it_cannot_read(tmp_path):
+    """A folder or a file that is not UTF-8 text is one "cannot read" line naming it, not a
+    traceback."""
+    binary = tmp_path / "scene.toml"
+    binary.write_bytes(b"\xff\xfe\x00dim = 2")
+    for path in (tmp_path, binary):
+        with pytest.raises(SceneError) as info:
+            load_scene(path)
+        (line,) = info.value.problems
+        assert line.startswith(f"{path}: cannot read: "), line
 
 def test_dataclasses_and_defaults():
     scene = parse_scene(GOOD, "s.toml")
@@ -244,6 +362,43 @@ def test_dataclasses_and_defaults():
         "right_clamp", {"lower": (0.75, 0.4, 0.4), "upper": (0.8, 0.6, 0.6)}, (0.0, 0.0, 0.0),
         (3.14159, 0.0, 0.0), (0.775, 0.5, 0.5))
 
+
+def test_defaults_of_absent_keys():
+    """The documented defaults (docs/scene-format.md) of the keys disks_2d.toml spells out:
+    particles_per_cell 2, quadratic kernel, MLS, cfl 0.4, a frame every end_time, slip walls,
+    the explicit integrator and the solver's settings."""
+    text = GOOD
+    for line in ("particles_per_cell = 2", 'kernel = "quadratic"', 'transfer = "mls"',
+                 "cfl = 0.4", "every = 0.1", 'default = "slip"'):
+        assert line in text
+        text = text.replace(line + "\n", "")
+    scene = parse_scene(text, "s.toml")
+    assert (scene.particles_per_cell, scene.kernel, scene.transfer, scene.cfl) == (
+        2, "quadratic", "mls", 0.4)
+    assert scene.output.every == scene.end_time == 3.0
+    assert scene.walls.faces == (WallFace("slip", 0.0),) * 4
+    assert scene.integrator == "explicit"
+    assert (scene.solver.mode, scene.solver.preconditioner, scene.solver.tolerance,
+            scene.solver.max_iterations, scene.solver.newton_tolerance) == (
+        "linearized", "jacobi", 1e-6, 1000, 1e-6)
+    assert (scene.parallel.rebalance_threshold, scene.parallel.rebalance_every) == (1.2, 20)
+
+
+def test_closed_bounds_admit_their_end_values():
+    """The documented closed ends are valid: cfl 2, flip_alpha 0 and 1, jitter 1, zero
+    friction, one cell along an axis (dx = the domain extent), a collider acting at one instant
+    (start = end)."""
+    collider = ('[[colliders]]\nshape = "sphere"\ncenter = [0.5, 0.5]\nradius = 0.1\n'
+                "friction = 0.0\nstart = 0.5\nend = 0.5\n")
+    scene = parse_scene(GOOD.replace("cfl = 0.4", "cfl = 2.0\nflip_alpha = 1.0")
+                        .replace("velocity = [0.1, 0.1]", "jitter = 1.0")
+                        + "friction = 0.0\n" + collider, "s.toml")
+    assert (scene.cfl, scene.flip_alpha, scene.bodies[0].jitter) == (2.0, 1.0, 1.0)
+    assert scene.walls.faces[0].friction == 0.0
+    assert (scene.colliders[0].start, scene.colliders[0].end) == (0.5, 0.5)
+    assert parse_scene(GOOD.replace("cfl = 0.4", "flip_alpha = 0.0")).flip_alpha == 0.0
+    one_cell = GOOD.replace("dx = 0.02", "dx = 1.0")
+    assert parse_scene(one_cell).dx == 1.0
 
 def test_periodic_axes_are_sorted_indices_and_default_to_none():
     assert parse_scene(GOOD).periodic == ()
