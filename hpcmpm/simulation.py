@@ -438,8 +438,7 @@ class Simulation:
                         self._static_split, grid["mass"], grid["momentum"], impulse)
         if self.prescribed:
             with t("p2g"):
-                for clamp in self.prescribed:
-                    clamp.scatter(p, grid, self.order)
+                self.scatter_prescribed_marks()
 
     def scatter_mass_momentum(self) -> None:
         """P2G of mass and momentum only (no stress): the semi-implicit step finds the
@@ -450,8 +449,7 @@ class Simulation:
                 self._zero_tau = np.zeros((p.capacity, self.dim, self.dim))
             impulse = grid["impulse"] if self.split_force else grid["momentum"]
             C = p["C"] if "C" in p else None
-            ranges = [(0, p.n)] if self._all_on_grid else \
-                [self.group_slices[g] for g in self._on_grid]
+            ranges = self.grid_ranges()
             for start, stop in ranges:
                 if stop > start:
                     SCATTER[self.dim](
@@ -461,8 +459,22 @@ class Simulation:
                         self._static_scheme, self._static_order, self.dinv_factor, self.dx,
                         self.domain_lo, grid.origin, 0.0, self._static_split, grid["mass"],
                         grid["momentum"], impulse)
-            for clamp in self.prescribed:
-                clamp.scatter(p, grid, self.order)
+            self.scatter_prescribed_marks()
+
+    def grid_ranges(self) -> list[tuple[int, int]]:
+        """The row ranges of the particles the grid carries (after the step's sort): all
+        rows, or the on-grid materials' slices."""
+        if self._all_on_grid:
+            return [(0, self.particles.n)]
+        return [self.group_slices[g] for g in self._on_grid]
+
+    def scatter_prescribed_marks(self) -> None:
+        """The prescribed sets' node marks (boundaries/prescribed.py) from the particles the
+        grid carries: an off-grid PD particle of a set is moved by pd/boundary.py and has no
+        nodes, so it must not clamp the nodes an MPM body beside it uses."""
+        for clamp in self.prescribed:
+            for start, stop in self.grid_ranges():
+                clamp.scatter(self.particles, self.grid, self.order, start, stop)
 
     def scatter_forces(self, dt: float) -> None:
         """The force channel: per-particle forces of the step extensions (peridynamic bond
@@ -527,8 +539,7 @@ class Simulation:
             old = grid["velocity_old"] if self.scheme == FLIP else self._dummy_vector
             C = p["C"] if "C" in p else None
             target = p[self.deformation]
-            ranges = [(0, p.n)] if self._all_on_grid else \
-                [self.group_slices[g] for g in self._on_grid]
+            ranges = self.grid_ranges()
             for start, stop in ranges:
                 if stop <= start:
                     continue

@@ -114,12 +114,15 @@ class PrescribedSet:
         """Centre at time t, padded to 3 components."""
         return self.centre0 + self.velocity * t
 
-    def scatter(self, particles, grid, order: int) -> None:
-        """Count, per node, this set's particles whose support holds it (after P2G)."""
+    def scatter(self, particles, grid, order: int, start: int = 0, stop: int | None = None
+                ) -> None:
+        """Count, per node, this set's particles (of the rows [start, stop)) whose support
+        holds it (after P2G)."""
         org = np.zeros(3, dtype=np.int64)
         org[: self.dim] = grid.origin
-        scatter_marks(particles["x"], particles["prescribed"], self.index, order, grid.dx,
-                      vec3(grid.domain_lo, self.dim), org,
+        rows = slice(start, particles.n if stop is None else stop)
+        scatter_marks(particles["x"][rows], particles["prescribed"][rows], self.index, order,
+                      grid.dx, vec3(grid.domain_lo, self.dim), org,
                       block3(grid[self.mark_field], self.dim))
 
     def apply(self, velocity, origin, dx, domain_lo, t, dt, grid) -> None:

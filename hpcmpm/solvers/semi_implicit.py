@@ -344,8 +344,7 @@ class SemiImplicitIntegrator:
             self._dG = np.zeros((n, d, d))
             self._T = np.zeros((n, d * d, d * d))  # the tangents (`_tangent`)
             self._scratch_n = n
-        self._ranges = [(0, p.n)] if sim._all_on_grid else \
-            [sim.group_slices[g] for g in sim._on_grid]
+        self._ranges = sim.grid_ranges()
         self._slices = [(sim.materials[g], sim.material_fields(g), *sim.group_slices[g])
                         for g in sim._on_grid if sim.group_slices[g][1] > sim.group_slices[g][0]]
 

@@ -576,3 +576,67 @@ def test_prescribed_nodes_are_fixed_in_every_direction(dim):
     rows = basis[on][:, :dim, :dim]
     np.testing.assert_array_equal(np.einsum("nki,nkj->nij", rows, rows),
                                   np.broadcast_to(np.eye(dim), rows.shape))
+
+
+MIXED_PUSH = """
+[simulation]
+dim = 2
+domain = { lower = [0.0, 0.0], upper = [1.0, 1.0] }
+dx = 0.05
+gravity = [0.0, 0.0]
+end_time = 0.02
+%s
+[[materials]]
+name = "rubber"
+type = "neo_hookean"
+density = 1000.0
+E = 1000.0
+nu = 0.3
+
+[[materials]]
+name = "steel"
+type = "peridynamic"
+model = "pmb"
+integration = "pd"
+plane = "strain"
+density = 1000.0
+E = 1000.0
+nu = 0.25
+
+[[bodies]]
+name = "block"
+material = "rubber"
+shape = "box"
+lower = [0.3, 0.3]
+upper = [0.5, 0.7]
+
+[[bodies]]
+name = "pusher"
+material = "steel"
+shape = "box"
+lower = [0.5, 0.3]
+upper = [0.7, 0.7]
+
+[[prescribed]]
+name = "push"
+region = { lower = [0.5, 0.3], upper = [0.7, 0.7] }
+velocity = [0.5, 0.0]
+"""
+
+
+@pytest.mark.parametrize("integrator", ["explicit", "semi_implicit"])
+def test_an_off_grid_pd_set_does_not_clamp_the_nodes_of_an_mpm_body_beside_it(integrator):
+    """An off-grid PD body in a prescribed set is moved per particle (pd/boundary.py); it has
+    no grid nodes, so its set marks none. Before, its particles' supports marked the nodes
+    of the MPM block touching it, and the whole block (128 of 128 particles) took the set's
+    velocity 0.5; at rest, without gravity or stress, it must stay exactly at rest."""
+    from hpcmpm.runner import simulate
+    from hpcmpm.scene import parse_scene
+
+    text = MIXED_PUSH % f'integrator = "{integrator}"'
+    sim = simulate(parse_scene(text, path="<mixed push>"))
+    p = sim.particles
+    block, pusher = p["group"] == 0, p["group"] == 1
+    assert sim.step_index >= 1 and block.sum() == 128
+    assert np.all(p["v"][pusher] == [0.5, 0.0])
+    assert np.all(p["v"][block] == 0.0)
