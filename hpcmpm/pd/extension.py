@@ -362,6 +362,13 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
         super().__init__(sim, material)
         self.walls = ParticleWalls(sim.scene)
         self.colliders = ParticleColliders(sim.scene)
+        if sim.uses_grid and sim.domain is not None and sim.domain.rank == 0:
+            # Nothing couples off-grid PD particles to the grid's bodies: say so, or a
+            # projectile passes through its target without a word.
+            log.warning("%s: warning: material %r (integration = \"pd\") moves off the grid: "
+                        "its bodies and the grid's bodies pass through each other (no contact); "
+                        "integration = \"grid\" couples them through the grid", self._where(),
+                        material.spec.name)
 
     def after_g2p(self, sim, dt: float) -> None:
         with sim.phase("pd"):

@@ -640,3 +640,22 @@ def test_an_off_grid_pd_set_does_not_clamp_the_nodes_of_an_mpm_body_beside_it(in
     assert sim.step_index >= 1 and block.sum() == 128
     assert np.all(p["v"][pusher] == [0.5, 0.0])
     assert np.all(p["v"][block] == 0.0)
+
+
+def test_off_grid_pd_beside_grid_bodies_is_warned_about(caplog):
+    """Off-grid PD bodies and the grid's bodies pass through each other: a scene with both
+    says so once, naming the material; a scene of off-grid PD bodies alone does not."""
+    from hpcmpm.runner import simulate
+    from hpcmpm.scene import load_scene, parse_scene
+
+    with caplog.at_level("WARNING", logger="hpcmpm"):
+        simulate(parse_scene(MIXED_PUSH % "", path="<mixed push>"), end_time=1e-3)
+    said = [r.getMessage() for r in caplog.records if "pass through" in r.getMessage()]
+    assert said == ["<mixed push>: materials[1]: warning: material 'steel' (integration = "
+                    "\"pd\") moves off the grid: its bodies and the grid's bodies pass through "
+                    "each other (no contact); integration = \"grid\" couples them through the "
+                    "grid"]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="hpcmpm"):
+        simulate(load_scene("inputs/kalthoff_winkler_2d.toml"), end_time=1e-6)
+    assert not [r for r in caplog.records if "pass through" in r.getMessage()]
