@@ -86,7 +86,8 @@ def jacobi_angle(app, aqq, apq):
 @njit(cache=True)
 def svd2(f):
     """Signed SVD F = U diag(s0, s1) V^T of a 2x2 tuple: returns (U, s0, s1, V), U and V
-    rotations (det +1); s1 < 0 iff det F < 0."""
+    rotations (det +1). Not sorted: when det F < 0 the value of smaller magnitude is the
+    negative one, s0 or s1."""
     R, S = polar2(f)
     c, s, t = jacobi_angle(S[0], S[3], S[1])
     s0 = S[0] - t * S[1]

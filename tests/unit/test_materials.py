@@ -192,6 +192,23 @@ def test_kirchhoff_stress_is_symmetric(name, dim):
     assert np.allclose(tau, tau.transpose(0, 2, 1), rtol=0, atol=1e-13 * np.abs(tau).max())
 
 
+@pytest.mark.parametrize("dim", DIMS)
+@pytest.mark.parametrize("name", ELASTIC)
+def test_energy_is_the_volume_weighted_sum(name, dim):
+    """energy = sum_p V0_p psi(F_p): particles of different reference volumes against the
+    one-particle energies (V0 = 1) weighted here. The other tests use V0 = 1, where a
+    dropped V0 goes unseen. The same terms summed in the same order: measured equal to the
+    last bit for every model; 1e-13 leaves room for a reordered sum."""
+    rng = np.random.default_rng([ELASTIC.index(name), dim, 19])
+    mat = material(name, dim)
+    Jp = 0.8 if name == "snow" else 1.0
+    F = np.stack([random_F(rng, dim) for _ in range(6)])
+    f = fields_for(F, Jp)
+    f["vol0"][:] = rng.uniform(0.2, 3.0, len(F))
+    want = sum(v * energy(mat, Fi, Jp) for v, Fi in zip(f["vol0"], F))
+    assert mat.energy(f) == pytest.approx(want, rel=1e-13)
+
+
 # -- polar decomposition and SVD -------------------------------------------------------------
 def hard_cases(rng, d: int) -> np.ndarray:
     """Near-degenerate F with det > 0: identity, repeated and clustered singular values,
@@ -257,6 +274,56 @@ def test_signed_svd(dim):
         ref = np.linalg.svd(G, compute_uv=False)
         assert (np.abs(np.sort(np.abs(s))[:, ::-1] - ref) / scale[:, :, 0]).max() < 1e-14
         assert np.all(np.sign(np.prod(s, axis=1)) == np.sign(np.linalg.det(G)))
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_signed_svd_puts_the_sign_on_the_smallest_value(dim):
+    """The signed SVD's convention (Irving et al. 2004): for det F < 0 exactly one singular
+    value is negative and it is the one of smallest magnitude (so R = U V^T is the closest
+    rotation); in 3D the values come sorted, s0 >= s1 >= |s2|. Random F, well away from ties
+    (the hard cases hold values equal to an ulp, where any order is right)."""
+    rng = np.random.default_rng(16)
+    F = np.stack([random_F(rng, dim, 0.05, 20.0) for _ in range(300)])
+    inverted = F.copy()
+    inverted[:, :, 0] *= -1
+    for G in (F, inverted):
+        _, s, _ = svd(G)
+        a = np.abs(s)
+        negative = s < 0
+        assert np.all(negative.sum(axis=1) == (np.linalg.det(G) < 0))
+        # The negative value is the smallest in magnitude: exactly the same float, since
+        # |s| of that entry is the minimum (comparisons, no arithmetic).
+        rows = negative.any(axis=1)
+        assert np.all(a[rows][negative[rows]] == a[rows].min(axis=1))
+        if dim == 3:
+            assert np.all(s[:, 0] >= s[:, 1]) and np.all(s[:, 1] >= a[:, 2])
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_svd_and_polar_of_rank_deficient_F(dim):
+    """A collapsed particle (F of rank < d, F = 0) still gets rotations U, V, R and
+    U Sigma V^T = R S = F: columns of F V that vanish take any unit vector orthogonal to the
+    others (`_unit_orthogonal`, the cross product with the least aligned axis). Exact zero
+    columns, F = [x 0 0], hit that path for every orientation of x; random rank-1 F too.
+    Measured: reconstruction <= 7.0e-16 |F|, orthogonality and det within 8.9e-16; 1e-14
+    bounds both (a wrong orthogonal vector leaves U off a rotation by O(1))."""
+    rng = np.random.default_rng(17)
+    columns = []
+    for _ in range(60):
+        G = np.zeros((dim, dim))
+        G[:, rng.integers(dim)] = rng.normal(size=dim) * rng.uniform(0.1, 10.0, dim)
+        columns.append(G)
+    rank1 = [np.outer(rng.normal(size=dim), rng.normal(size=dim)) for _ in range(60)]
+    F = np.array(columns + rank1 + [np.zeros((dim, dim))])
+    scale = np.maximum(np.linalg.norm(F, axis=(1, 2)), 1.0)[:, None, None]
+    eye = np.eye(dim)
+    U, s, V = svd(F)
+    R, S = polar(F)
+    for Q in (U, V, R):
+        assert np.abs(np.einsum("nki,nkj->nij", Q, Q) - eye).max() < 1e-14
+        assert np.abs(np.linalg.det(Q) - 1.0).max() < 1e-14
+    assert (np.abs(U @ (s[:, :, None] * V.transpose(0, 2, 1)) - F) / scale).max() < 1e-14
+    assert (np.abs(R @ S - F) / scale).max() < 1e-14
 
 
 # -- snow plasticity -------------------------------------------------------------------------
@@ -341,6 +408,46 @@ def test_snow_softening(dim):
     assert np.all(np.isfinite(tau))
 
 
+@pytest.mark.parametrize("dim", DIMS)
+def test_snow_clamps_onto_the_critical_bounds(dim):
+    """A trial F_E = U diag(s) V^T with one singular value past each bound comes back as
+    U diag(c) V^T, c = clip(s, 1 - theta_c, 1 + theta_s): the clamped values sit on the bounds,
+    not inside them, the singular vectors are kept and J_P gains prod(s / c). Measured over 50
+    random U, V: F_E within 7.8e-16, J_P within 1.4e-15 relative; 1e-14 bounds both (a bound
+    taken from the other theta moves a value by 1.75e-2)."""
+    rng = np.random.default_rng(13)
+    lo, hi = 1 - STOMAKHIN_SNOW["theta_c"], 1 + STOMAKHIN_SNOW["theta_s"]
+    s = np.array([1.05, 0.9, 1.0][:dim])  # beyond 1 + theta_s, below 1 - theta_c, inside
+    c = np.clip(s, lo, hi)
+    mat = snow(dim)
+    for _ in range(5):
+        U, V = random_rotation(rng, dim), random_rotation(rng, dim)
+        f = fields_for((U @ np.diag(s) @ V.T)[None])
+        mat.update_state(f, 1e-3)
+        assert np.abs(f["F"][0] - U @ np.diag(c) @ V.T).max() < 1e-14
+        assert f["Jp"][0] == pytest.approx(np.prod(s / c), rel=1e-14)
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_snow_pd_stress_is_the_stress_of_the_elastic_part(dim):
+    """SPB-MPM asks snow for the stress at a peridynamic deformation gradient F^PD
+    (`Snow.pd_stress`): that of F_E = F^PD F_P^-1 with the hardening of J_P, here against
+    F_E formed with numpy's inverse. F_P is not symmetric, so F^PD F_P^-T (a transposed
+    inverse) differs by 5-10 % of tau. Measured: 8.9e-16 of max |tau|; 1e-13 bounds it."""
+    rng = np.random.default_rng(18)
+    mat = snow(dim)
+    n = 20
+    F = np.stack([random_F(rng, dim, 0.8, 1.2) for _ in range(n)])
+    Fp = np.stack([random_F(rng, dim, 0.7, 1.3) for _ in range(n)])
+    Jp = np.linalg.det(Fp)
+    tau = np.full((n, dim, dim), np.nan)
+    mat.pd_stress({"Fp": Fp, "Jp": Jp}, F, tau)
+    want = fields_for(F @ np.linalg.inv(Fp))
+    want["Jp"][:] = Jp
+    mat.update_stress(want, 1e-3)
+    assert np.abs(tau - want["tau"]).max() < 1e-13 * np.abs(want["tau"]).max()
+
+
 # -- the rest of the contract ----------------------------------------------------------------
 @pytest.mark.parametrize("dim", DIMS)
 @pytest.mark.parametrize("name", ELASTIC)
@@ -375,6 +482,36 @@ def test_weakly_compressible_matches_mpm88_and_forgets_shear(dim):
     assert abs(np.linalg.det(f["F"][0]) / J - 1) <= 1e-14
     assert np.allclose(f["F"][0], J ** (1.0 / dim) * np.eye(dim), rtol=rtol_F, atol=0)
     assert np.allclose(f["tau"][0], E * (J - 1) * np.eye(dim), rtol=rtol_tau, atol=0)
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_weakly_compressible_carrying_J_alone(dim):
+    """A fluid-only scene carries J, not F (mode "J"). The stress is tau = E (J - 1) I with
+    zeros off the diagonal whatever the step's buffer held (NaN here; the simulation's buffer
+    is np.empty, shared by the materials' chunks), the same as the stress of
+    F = J^(1/d) I; the energy is sum_p V0_p psi(J_p) with tau = J dpsi/dJ (central
+    difference of the one-particle energy)."""
+    rng = np.random.default_rng(20)
+    mat = material("weakly_compressible", dim)
+    n = 8
+    J = rng.uniform(0.7, 1.3, n)
+    vol0 = rng.uniform(0.2, 3.0, n)
+    f = {"J": J.copy(), "vol0": vol0, "tau": np.full((n, dim, dim), np.nan)}
+    mat.update_stress(f, 1e-3)
+    assert np.array_equal(f["tau"], (E * (J - 1))[:, None, None] * np.eye(dim))
+    # det F of F = J^(1/d) I: a root and a product, a few ulps of J (measured 2.2e-16 E).
+    via_F = stress(mat, (J ** (1.0 / dim))[:, None, None] * np.eye(dim))
+    assert np.abs(via_F - f["tau"]).max() < 1e-13 * E
+
+    def psi(j):
+        return mat.energy({"J": np.array([j]), "vol0": np.ones(1)})
+
+    assert mat.energy(f) == pytest.approx(sum(v * psi(j) for v, j in zip(vol0, J)), rel=1e-14)
+    h = 1e-6
+    slope = np.array([j * (psi(j + h) - psi(j - h)) / (2 * h) for j in J])
+    # Truncation (third derivative) h^2 / 6 ~ E h^2 ~ 1e-11, round-off 1e-16 psi / h ~ 1e-10;
+    # measured 3.2e-11 E.
+    assert np.abs(slope - f["tau"][:, 0, 0]).max() < 1e-8 * E
 
 
 def test_update_on_particle_set_slices():

@@ -93,6 +93,30 @@ def test_precrack_segment_2d():
     assert all([p for p, _ in got[k]] == [p for p, _ in want[k]] for k in want)
 
 
+def test_precrack_tip_on_a_bond_cuts_it():
+    """A crack whose tip lies on a bond cuts it (`_crosses_precrack`: the crack's ends not
+    strictly on the same side of the bond's line), as a closed segment would: an unjittered
+    lattice (integer coordinates, so the tip at (2.5, 2) is exactly on the bonds through it
+    and the orientation tests are exact) against the brute force with the closed segment."""
+    x0 = np.stack(np.meshgrid(np.arange(6.0), np.arange(6.0), indexing="ij"), -1).reshape(-1, 2)
+    ids = np.arange(len(x0))
+    crack = np.array([[[2.5, -1.0], [2.5, 2.0]]])
+
+    def cut(p, q):
+        if (p[0] - 2.5) * (q[0] - 2.5) >= 0:
+            return False
+        y = p[1] + (2.5 - p[0]) * (q[1] - p[1]) / (q[0] - p[0])
+        return -1.0 <= y <= 2.0
+
+    fam = find_families(x0, ids, len(x0), 1.0, 2.0, precracks=crack)
+    got, want = as_dict(fam, ids), brute_force(x0, ids, 2.0, 1.0, "constant", cut)
+    assert got.keys() == want.keys()
+    assert all([p for p, _ in got[k]] == [p for p, _ in want[k]] for k in want)
+    at = {tuple(x): i for i, x in enumerate(x0.tolist())}   # ids are rows here
+    assert at[3.0, 2.0] not in [p for p, _ in got[at[2.0, 2.0]]]   # through the tip: cut
+    assert at[3.0, 3.0] in [p for p, _ in got[at[2.0, 3.0]]]       # beyond it: kept
+
+
 def test_precrack_polygon_3d():
     x0, ids = jittered(3, 7, seed=4)
     # A triangle in the plane z = 3.1 covering x + y < 6 (x, y >= -1).
@@ -160,6 +184,49 @@ def test_pmb_constants_equal_the_issue_closed_forms():
         moduli.critical_stretch(3, 0.0, 1.0, delta)
     with pytest.raises(ValueError, match="below one particle spacing"):
         find_families(np.zeros((2, 2)), np.arange(2), 2, 1.0, 0.5)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_partial_volumes_off_keeps_partners_at_the_horizon(dim):
+    """Without partial volumes a bond exists for |X| <= delta, the horizon included: with
+    delta = 3 dx on an integer lattice (exact squared distances, so |X| = 3 is not blurred
+    by round-off) the interior family is every lattice vector with 0 < |k|^2 <= 9, counted
+    here, and `half_bonds_per_particle` (the memory estimate) agrees."""
+    from hpcmpm.pd.families import half_bonds_per_particle
+
+    axis = np.arange(-3, 4)
+    k2 = sum(g * g for g in np.meshgrid(*[axis] * dim, indexing="ij"))
+    want = int(np.sum((k2 > 0) & (k2 <= 9)))
+    x0 = np.stack(np.meshgrid(*[np.arange(9.0)] * dim, indexing="ij"), -1).reshape(-1, dim)
+    fam = find_families(x0, np.arange(len(x0)), len(x0), 1.0, 3.0, partial_volumes=False)
+    centre = int(np.argmin(np.linalg.norm(x0 - 4.0, axis=1)))
+    assert fam.bonds.counts()[centre] == want
+    assert half_bonds_per_particle(dim, 3.0, False) == want
+
+
+@pytest.mark.parametrize("dim,influence,pv", [(2, "conical", True), (3, "constant", True),
+                                              (3, "gaussian", False), (2, "inverse", True)])
+def test_full_family_sum_is_the_sum_over_an_interior_family(dim, influence, pv):
+    """`full_family_sum` (the lattice sums behind the bond-energy scale and the PD time
+    step) equals sum_q w_q |X_q|^k V_q over the bonds `find_families` gives an interior
+    point (checked against a brute force above), for k = -2..1. It writes the influence
+    functions and the partial volumes again (numpy), so the search's tests do not see a slip
+    there. The same weights (28 to 178 bonds) summed in another order: measured <= 2.2e-16
+    relative; 1e-13 bounds the round-off of such sums."""
+    from hpcmpm.pd.families import full_family_sum
+
+    h, delta = 0.5, 3.015 * 0.5
+    x0 = h * np.stack(np.meshgrid(*[np.arange(9.0)] * dim, indexing="ij"), -1).reshape(-1, dim)
+    fam = find_families(x0, np.arange(len(x0)), len(x0), h, delta, influence=influence,
+                        partial_volumes=pv)
+    centre = int(np.argmin(np.linalg.norm(x0 - 4.0 * h, axis=1)))
+    b = fam.bonds
+    rows = slice(b.offsets[centre], b.offsets[centre + 1])
+    r = np.linalg.norm(x0[b.slot[rows]] - x0[centre], axis=1)
+    for k in (-2, -1, 0, 1):
+        want = float(np.sum(b.weight[rows] * r ** k)) * h ** dim
+        assert full_family_sum(dim, h, delta, influence, pv, power=k) == \
+            pytest.approx(want, rel=1e-13)
 
 
 def test_half_bond_estimate_matches_an_interior_family():

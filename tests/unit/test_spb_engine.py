@@ -83,6 +83,54 @@ def test_stretch_failure_needs_a_critical_stretch():
     assert len(lines) == 1 and "failure.critical_stretch: missing" in lines[0]
 
 
+SPB_TABLE = {"model": "spb", "grid_energy": 1.0, "bond_energy": 1.0}
+
+
+def spb_material(type_="fixed_corotated", name="m", params=None, **failure):
+    from hpcmpm.materials import make_material
+    from hpcmpm.scene import MaterialSpec
+
+    params = {"E": 100.0, "nu": 0.3} if params is None else params
+    return make_material(MaterialSpec(name, type_, 1.0, {**params, "failure": {
+        **SPB_TABLE, **failure}}), 2)
+
+
+@pytest.mark.parametrize("key,a,b", [
+    ("coupling", "exclusive", "additive"), ("bond_failure", "energy", "work"),
+    ("critical_stretch", 0.01, 0.02), ("influence", "constant", "linear"),
+    ("horizon", 3.015, 4.0), ("max_bond_stretch", 1.0, 0.5), ("clamp", "sticky_walls", "none")])
+def test_spb_materials_must_agree_on_the_shared_keys(key, a, b):
+    """The scene's one SPB extension reads these keys from the first SPB material only
+    (hpcmpm/pd/spb.py: one bond set, one coupling, one clamp), so two SPB materials that
+    differ in one of them are one problem naming that key; agreeing materials are none."""
+    from hpcmpm.materials.failure import failure_scene_problems
+
+    extra = {"bond_failure": "stretch"} if key == "critical_stretch" else {}
+    same = [spb_material(name=n, **extra, **{key: a}) for n in "mn"]
+    assert failure_scene_problems(same, "mls", "explicit") == []
+    differ = [spb_material(name="m", **extra, **{key: a}),
+              spb_material(name="n", **extra, **{key: b})]
+    (problem,) = failure_scene_problems(differ, "mls", "explicit")
+    assert problem[0] == f"materials[0].failure.{key}" and "must agree" in problem[1]
+
+
+def test_pd_moduli_are_the_bulk_and_shear_moduli():
+    """The PD micromoduli (stabilization, PD time step) take (bulk, shear) from the material:
+    from E and nu the 2D plane-strain bulk modulus lam + mu = E / (2 (1 + nu)(1 - 2 nu)) and
+    mu = E / (2 (1 + nu)) (3D: E / (3 (1 - 2 nu))); from an EOS, rho0 c0^2 and the shear
+    modulus of the strength model. The same formulas in another order: a few ulps, 1e-15."""
+    from hpcmpm.materials.failure import pd_moduli
+
+    E, nu = 100.0, 0.3
+    mat = spb_material()
+    assert pd_moduli(2, mat) == pytest.approx((E / (2 * (1 + nu) * (1 - 2 * nu)),
+                                               E / (2 * (1 + nu))), rel=1e-15)
+    assert pd_moduli(3, mat)[0] == pytest.approx(E / (3 * (1 - 2 * nu)), rel=1e-15)
+    shock = spb_material("shock", params={"E": 2e9, "nu": 0.3, "eos": {
+        "type": "mie_gruneisen", "c0": 3940.0}})
+    assert pd_moduli(2, shock) == pytest.approx((1.0 * 3940.0 ** 2, 2e9 / 2.6), rel=1e-15)
+
+
 def run(sc):
     sim = Simulation(sc, make_domain(sc, Communicator()))
     initial_particles(sim)
