@@ -162,8 +162,8 @@ class Simulation:
         # ever allocated (the bodies move in their extension's after_g2p, walls and
         # prescribed sets act per particle there: pd/extension.py, pd/boundary.py).
         self.uses_grid = grid_in_use(scene, self.materials)
-        self._state_groups = [g for g in self._on_grid
-                              if self.deformation == "L" or self.materials[g].updates_state(self.deformation)]
+        self._state_groups = [g for g in self._on_grid if self.deformation == "L"
+                              or self.materials[g].updates_state(self.deformation)]
         # simulation.volume_averaging = "increment": the materials whose change of J over
         # each step is averaged through the grid (`remember_volumes`, `average_volumes`);
         # none by default, and then no grid field, scratch array or phase exists for it.
