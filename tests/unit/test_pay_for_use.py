@@ -149,5 +149,5 @@ def test_off_grid_peridynamic_bodies_alone_run_no_grid_phase(monkeypatch):
     b = np.argsort(gridded.particles["id"])
     assert np.array_equal(alone.particles["x"][a], gridded.particles["x"][b])
     assert np.array_equal(alone.particles["v"][a], gridded.particles["v"][b])
-    moved = np.abs(alone.particles["v"]).max()
-    assert moved >= 16.0  # the impactor's speed reached the plate: not a run at rest
+    free = alone.particles["prescribed"] == -1  # the plate outside the impactor's set
+    assert free.any() and np.abs(alone.particles["v"][free]).max() > 1.0  # not a run at rest
