@@ -252,8 +252,16 @@ class Simulation:
 
     # -- the step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:
-        """Advance by ``dt`` with the scene's integrator (explicit: 000 §3.3, Fig. 3.1)."""
-        self.integrator.step(self, dt)
+        """Advance by ``dt``: the sort, the integrator's grid part (explicit: 000 §3.3, Fig.
+        3.1) when the grid is in use (`uses_grid`; else off-grid peridynamic bodies only),
+        the extensions after G2P (peridynamic bodies, 003 Alg. 2), then migration."""
+        self.sort_phase()
+        if self.forcing is not None:
+            self.forcing(self, dt)  # body force as a particle impulse (manufactured solutions)
+        if self.uses_grid:
+            self.integrator.grid_step(self, dt)
+        self.after_g2p(dt)
+        self.migrate()
         self.time += dt
         self.step_index += 1
 

@@ -10,7 +10,9 @@ Interface::
         name: ClassVar[str]
         needs_velocity_gradient: ClassVar[bool]   # particles carry L (mode "L")
         def __init__(self, sim)
-        def step(self, sim, dt) -> None            # one step of the phases
+        def grid_step(self, sim, dt) -> None       # the step's grid phases (P2G .. state
+                                                   # update); `Simulation.step` runs the
+                                                   # sort before and the extensions after
         def stable_dt(self, sim, speed) -> float   # speed: global max |v_p|
         @staticmethod
         def scratch_bytes_per_particle(dim) -> int # per-particle arrays it allocates (at

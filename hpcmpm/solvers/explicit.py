@@ -16,18 +16,10 @@ class ExplicitIntegrator:
     def __init__(self, sim):
         self.sim = sim
 
-    def step(self, sim, dt: float) -> None:
-        sim.sort_phase()
-        if sim.forcing is not None:
-            sim.forcing(sim, dt)  # body force as a particle impulse (manufactured solutions)
-        if sim.uses_grid:  # else off-grid peridynamic bodies only (Simulation.uses_grid)
-            self.grid_step(sim, dt)
-        sim.after_g2p(dt)  # extensions (peridynamic bodies, 003 Alg. 2)
-        sim.migrate()
-
     @staticmethod
     def grid_step(sim, dt: float) -> None:
-        """The step's grid part: stress and P2G, the grid update, G2P and the state update."""
+        """The step's grid part (`Simulation.step` runs the rest): stress and P2G, the grid
+        update, G2P and the state update."""
         sim.fit_grid()
         sim.scatter_stress(dt)  # per chunk: Kirchhoff stress, then P2G of m, mv, dt f (eq. 3.1)
         sim.scatter_forces(dt)  # extensions' particle forces (integral-based MPM, 003 eq. 5.2)

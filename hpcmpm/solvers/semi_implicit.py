@@ -137,17 +137,9 @@ class SemiImplicitIntegrator:
         self._warned_curvature = False
 
     # -- the step ---------------------------------------------------------------------------
-    def step(self, sim, dt: float) -> None:
-        sim.sort_phase()
-        if sim.forcing is not None:
-            sim.forcing(sim, dt)
-        if sim.uses_grid:  # else off-grid peridynamic bodies only (Simulation.uses_grid)
-            self.grid_step(sim, dt)
-        sim.after_g2p(dt)
-        sim.migrate()
-
     def grid_step(self, sim, dt: float) -> None:
-        """The step's grid part: P2G, the solve, G2P and the state update."""
+        """The step's grid part (`Simulation.step` runs the rest): P2G, the solve, G2P and
+        the state update."""
         sim.fit_grid()
         sim.scatter_mass_momentum()  # m_i, m_i v_i^n (000 §3.4); no stress: the solve has it
         sim.scatter_forces(dt)  # extensions' particle forces, explicit
