@@ -236,9 +236,9 @@ class Peridynamic(Material):
 
             return (PLASTIC_STATE,) if self.params["plastic_yield"] < math.inf else ()
         if model == "viscoelastic_lps":
-            from ..pd.viscoelastic_lps import STATE_FIELDS
+            from ..pd.viscoelastic_lps import state_fields
 
-            return STATE_FIELDS
+            return state_fields(self.params["memory"])
         return ()
 
     def ghost_state_names(self) -> tuple[str, ...]:
@@ -253,7 +253,7 @@ class Peridynamic(Material):
         if model == "viscoelastic_lps":
             from ..pd.viscoelastic_lps import ghost_state_names
 
-            return ghost_state_names(nf)
+            return ghost_state_names(nf, self.params["memory"])
         return ()
 
     def side_bytes_per_particle(self) -> float:

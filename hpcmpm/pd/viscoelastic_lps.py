@@ -37,7 +37,9 @@ communication is needed.
 ``memory = "none"`` is the literal reading of eq. 5.14, which drops T[x_p, t^{n-1}]: the force
 is the last increment only, ve_iso = w (dt_p,iso + dt_q,iso), ve_dev = w (...), i.e. a
 viscous fluid whose viscosity is proportional to the step (about mu dt, see
-scripts/study_viscoelastic_lps.py), kept for comparison with the thesis.
+scripts/study_pd_models.py), kept for comparison with the thesis. It stores no force, so its
+bonds and the clamp's ghost store keep only the lengths (`state_fields`,
+`ghost_state_names`).
 
 tau = inf reproduces the total-Lagrangian LPS up to O(eps^2) in the strain (the stored
 increments use |Y_ref| where the LPS uses |X|). Failure: the total stretch
@@ -67,6 +69,14 @@ from .lps import shear_coefficient
 
 MEMORIES = ("maxwell", "none")
 STATE_FIELDS = ("ve_len", "ve_iso", "ve_dev")
+NO_PAIRS = np.empty((0, 2))
+_NO_FORCES = np.empty(0)
+
+
+def state_fields(memory: str) -> tuple[str, ...]:
+    """The per-bond state a model with this ``memory`` keeps: ``"none"`` stores no force (the
+    force is the step's increment alone), only the lengths the increments are taken from."""
+    return STATE_FIELDS if memory == "maxwell" else STATE_FIELDS[:1]
 
 
 @njit(cache=True, error_model="numpy")
@@ -143,11 +153,12 @@ MIRROR_LEN, MIRROR_ISO, MIRROR_DEV, IMAGE_MIRROR_LEN, IMAGE_LEN = range(5)
 GHOST_PER_FACE = len(GHOST_QUANTITIES) + 1
 
 
-def ghost_state_names(n_faces: int) -> tuple[str, ...]:
+def ghost_state_names(n_faces: int, memory: str = "maxwell") -> tuple[str, ...]:
     """The clamp's ghost-store states, face by face in the kernels' order (GHOST_QUANTITIES,
-    then the previous length of the bond's image)."""
-    return tuple(f"ve_{q}{f}" for f in range(n_faces)
-                 for q in (*GHOST_QUANTITIES, "image_len"))
+    then the previous length of the bond's image); ``memory = "none"`` stores no forces."""
+    kept = [q for q in (*GHOST_QUANTITIES, "image_len")
+            if memory == "maxwell" or q not in ("mirror_iso", "mirror_dev")]
+    return tuple(f"ve_{q}{f}" for f in range(n_faces) for q in kept)
 
 
 @njit(cache=True, inline="always")
@@ -242,11 +253,13 @@ def _increments(theta, m, de, r, kappa, alpha_m, dim):
 @njit(cache=True, error_model="numpy")
 def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, m, theta,
               kappa, mu, decay, gain, memory_none, commit, n_owned, f, faces, clamp, ghost,
-              shift, m_image, theta_image):
+              shift, m_image, theta_image, pairs):
     """Per-bond stored forces updated with this step's increments (module docstring), then
     f_p = sum_q (ve_iso + ve_dev) V_p V_q Y/|Y|. ``decay`` = exp(-dt/tau), ``gain`` =
     (1 - decay)/(dt/tau); ``commit`` False leaves the state untouched (verification). With
-    clamping ``faces``, p's ghost bonds too (`_ghost_forces`)."""
+    ``memory_none`` s_iso and s_dev are not read or written (they may be empty). ``pairs``
+    (n_bonds x 2, or empty) receives each bond's (ve_iso, ve_dev) of the step
+    (verification). With clamping ``faces``, p's ghost bonds too (`_ghost_forces`)."""
     dim = x.shape[1]
     alpha_m = shear_coefficient(mu, dim)
     acc = np.empty(3)
@@ -274,9 +287,13 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
                 si = s_iso[b] + w * (ip + iq)
                 sd = decay * s_dev[b] + gain * (w * (dp + dq))
             if commit:
-                s_iso[b] = si
-                s_dev[b] = sd
+                if not memory_none:
+                    s_iso[b] = si
+                    s_dev[b] = sd
                 ref_len[b] = yl
+            if pairs.shape[0] > 0:
+                pairs[b, 0] = si
+                pairs[b, 1] = sd
             a = (si + sd) * (vol[p] * vol[q]) / yl
             f0 += a * y0
             f1 += a * y1
@@ -330,8 +347,9 @@ def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
         for i in range(dim):
             acc[i] += a * Y[i]
         if commit:
-            _gset(ghost, fc, MIRROR_ISO, shift, p, k, si)
-            _gset(ghost, fc, MIRROR_DEV, shift, p, k, sd)
+            if not memory_none:
+                _gset(ghost, fc, MIRROR_ISO, shift, p, k, si)
+                _gset(ghost, fc, MIRROR_DEV, shift, p, k, sd)
             _gset(ghost, fc, MIRROR_LEN, shift, p, k, yl)
             ghost_bond(x, x0, q, p, axis, plane, dim, Y, X)
             _gset(ghost, fc, IMAGE_MIRROR_LEN, shift, p, k, norm3(Y[0], Y[1], Y[2]))
@@ -368,7 +386,7 @@ def modulus_state(x, vol, bonds, p: int, kappa: float, mu: float) -> np.ndarray:
 
 class ViscoelasticLPS:
     """Viscoelastic LPS over a points view (integrator.PDPoints); per-bond state in
-    ``bonds.state`` (STATE_FIELDS), per-point m and theta recomputed each step and refreshed
+    ``bonds.state`` (`state_fields`), per-point m and theta recomputed each step and refreshed
     in the halo.
 
     Parameters
@@ -400,7 +418,7 @@ class ViscoelasticLPS:
         nf = len(self.clamp_faces)
         self.halo_fields = ("m", "theta") + (("m_image", "theta_image") if nf else ())
         # The clamp's history, in its ghost store (only near a clamped wall).
-        self.ghost_states = ghost_state_names(nf)
+        self.ghost_states = ghost_state_names(nf, memory)
         self.persistent_fields = ()
         self.m = np.empty(0)
         self.theta = np.empty(0)
@@ -419,8 +437,20 @@ class ViscoelasticLPS:
         return decay, (-math.expm1(-z) / z if z > 0.0 else 1.0)
 
     def _declare_state(self, bonds) -> None:
-        for name in STATE_FIELDS:
+        for name in state_fields(self.memory):
             bonds.add_state(name)
+
+    def _ghost(self, pts) -> tuple[tuple, np.ndarray]:
+        """The ghost store's arrays in the kernels' layout (GHOST_PER_FACE a face) and the
+        shift; ``memory = "none"`` stores no forces, so empty placeholders stand in their
+        places (the kernels neither read nor write them then)."""
+        ghost, shift = ghost_arrays(pts, self.ghost_states)
+        if self.memory == "none" and len(self.clamp_faces):
+            kept = len(GHOST_QUANTITIES) - 1
+            ghost = tuple(a for f in range(len(self.clamp_faces))
+                          for a in (ghost[kept * f], _NO_FORCES, _NO_FORCES,
+                                    ghost[kept * f + 1], ghost[kept * f + 2]))
+        return ghost, shift
 
     def setup(self, pts) -> None:
         self._declare_state(pts.bonds)
@@ -438,7 +468,7 @@ class ViscoelasticLPS:
         b = pts.bonds
         self._declare_state(b)          # bonds restored or arrived without the state
         ve_initial_lengths(pts.x0, b.offsets, b.slot, pts.n_owned, b.state["ve_len"])
-        ghost, shift = ghost_arrays(pts, self.ghost_states)  # GHOST_PER_FACE a face
+        ghost, shift = self._ghost(pts)
         if len(self.clamp_faces):
             ve_clamp_initial_lengths(pts.x0, b.offsets, b.slot, b.status, pts.n_owned,
                                      self.clamp_faces, self.clamp, ghost, shift)
@@ -447,15 +477,19 @@ class ViscoelasticLPS:
                              self.clamp_faces, self.clamp, ghost, shift, self.m_image,
                              self.theta_image)
 
-    def forces(self, pts, f, commit: bool = True) -> int:
+    def forces(self, pts, f, commit: bool = True, pairs=NO_PAIRS) -> int:
+        """The step's forces into f (`ve_forces`); ``pairs`` (n_bonds x 2) receives each
+        bond's stored isotropic and deviatoric force of the step (verification)."""
         if self.memory == "maxwell" and math.isfinite(self.tau) and not self.dt > 0.0:
             raise RuntimeError("viscoelastic_lps: the driver must set model.dt before forces")
         decay, gain = self.relaxation(self.dt) if self.memory == "maxwell" else (1.0, 1.0)
         b = pts.bonds
-        ghost, shift = ghost_arrays(pts, self.ghost_states)  # GHOST_PER_FACE a face
+        ghost, shift = self._ghost(pts)
+        s_iso = b.state.get("ve_iso", _NO_FORCES)
+        s_dev = b.state.get("ve_dev", _NO_FORCES)
         ve_forces(pts.x, pts.x0, pts.vol, b.offsets, b.slot, b.status, b.weight,
-                  b.state["ve_len"], b.state["ve_iso"], b.state["ve_dev"], self.m,
-                  self.theta, self.kappa, self.mu, decay, gain, self.memory == "none",
-                  commit, pts.n_owned, f, self.clamp_faces, self.clamp, ghost, shift,
-                  self.m_image, self.theta_image)
+                  b.state["ve_len"], s_iso, s_dev, self.m, self.theta, self.kappa, self.mu,
+                  decay, gain, self.memory == "none", commit, pts.n_owned, f,
+                  self.clamp_faces, self.clamp, ghost, shift, self.m_image,
+                  self.theta_image, pairs)
         return 0

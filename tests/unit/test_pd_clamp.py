@@ -442,7 +442,8 @@ def viscoelastic_model(dim, clamped, memory="maxwell"):
     return model
 
 
-@pytest.mark.parametrize("dim, memory", [(2, "maxwell"), (3, "maxwell"), (2, "none")])
+@pytest.mark.parametrize("dim, memory", [(2, "maxwell"), (3, "maxwell"), (2, "none"),
+                                         (3, "none")])
 def test_clamped_viscoelastic_body_follows_the_continued_body(dim, memory):
     """Viscoelastic LPS with the clamp, over four steps of a random prescribed motion (the
     stored forces, the linearization's reference lengths and the Maxwell decay all carry
@@ -469,6 +470,11 @@ def test_clamped_viscoelastic_body_follows_the_continued_body(dim, memory):
 
     model, whole = viscoelastic_model(dim, True, memory), viscoelastic_model(dim, False, memory)
     pts, pts2 = body(model, x0), body(whole, both0)
+    # memory = "none" stores no forces, in the ghost store either: lengths only.
+    kept = {"mirror_len", "image_mirror_len", "image_len"}
+    if memory == "maxwell":
+        kept |= {"mirror_iso", "mirror_dev"}
+    assert sorted(pts.ghosts.state) == sorted(f"ve_{q}0" for q in kept)
     near = x0[:, 0] - PLANE < DELTA - 0.5          # rows with a ghost bond
     u = np.zeros_like(x0)
     for step in range(4):

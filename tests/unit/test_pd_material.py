@@ -227,6 +227,10 @@ def test_off_grid_pd_body_stops_at_a_wall(condition):
     ("ibmpm_wall_fracture_2d", ("materials.wall.plastic_yield=inf",), 0, 0),   # elastic
     ("ibmpm_cream_pie_2d", (), 3, 0),                   # the pie starts out of the wall's reach
     ("ibmpm_cream_pie_2d", ("bodies.0.center=[1.84, 0.6]",), 3, 5),       # clamped
+    # memory = "none" stores no forces: the lengths only, on the bonds and in the store.
+    ("ibmpm_cream_pie_2d", ('materials.cream.memory="none"',), 1, 0),
+    ("ibmpm_cream_pie_2d", ('materials.cream.memory="none"', "bodies.0.center=[1.84, 0.6]"),
+     1, 3),
 ])
 def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, states,
                                                                 ghost_states):

@@ -133,11 +133,13 @@ def virial_shear(pts, pair_force, rows):
     return s[rows].mean()
 
 
-def stored_pair_forces(pts):
+def stored_pair_forces(pts, pairs):
+    """The pair forces (ve_iso + ve_dev) V_p V_q Y/|Y| of the step whose stored forces
+    ``pairs`` the model returned."""
     b = pts.bonds
     owner = np.repeat(np.arange(b.n), b.counts())
     Y = pts.x[b.slot] - pts.x[owner]
-    a = (b.state["ve_iso"] + b.state["ve_dev"]) * pts.vol[owner] * pts.vol[b.slot]
+    a = pairs.sum(axis=1) * pts.vol[owner] * pts.vol[b.slot]
     return (a / np.linalg.norm(Y, axis=1))[:, None] * Y * (b.status[:, None] != 0)
 
 
@@ -161,27 +163,29 @@ def lattice_shear_modulus():
 
 def run_shear(model, rate, dt, steps, hold=0):
     """Affine simple shear gamma = rate t for ``steps`` steps, then held for ``hold`` steps;
-    returns the points and the stored s_dev after each held step."""
+    returns the points, the stored forces (ve_iso, ve_dev) of the last step and ve_dev
+    after each held step."""
     pts = affine_points(2, N_SHEAR, 0.0)
     model.setup(pts)
     model.dt = dt
     f = np.empty((pts.n_owned, 2))
+    pairs = np.empty((pts.bonds.n_bonds, 2))
     for k in range(1, steps + 1):
         pts.x[:, 0] = pts.x0[:, 0] + rate * k * dt * pts.x0[:, 1]
         model.update_state(pts)
-        model.forces(pts, f)
+        model.forces(pts, f, pairs=pairs)
     held = []
     for _ in range(hold):
         model.update_state(pts)
-        model.forces(pts, f)
-        held.append(pts.bonds.state["ve_dev"].copy())
-    return pts, held
+        model.forces(pts, f, pairs=pairs)
+        held.append(pairs[:, 1].copy())
+    return pts, pairs, held
 
 
 def test_held_shear_relaxes_exponentially():
     tau, dt = 1.0, 0.1
     model = ViscoelasticLPS(K, MU, relaxation_time=tau)
-    pts, held = run_shear(model, 1e-3 / dt, dt, steps=1, hold=40)
+    pts, pairs, held = run_shear(model, 1e-3 / dt, dt, steps=1, hold=40)
     start = held[0]
     big = np.abs(start) > 1e-3 * np.abs(start).max()
     assert big.sum() > 100
@@ -193,7 +197,10 @@ def test_held_shear_relaxes_exponentially():
     # Interior points of a shear have theta = O(gamma^2): the isotropic part stays small.
     b = pts.bonds
     inner = np.repeat(interior(pts.x0, N_SHEAR), b.counts())
-    assert np.abs(b.state["ve_iso"][inner]).max() < 1e-2 * np.abs(start[inner]).max()
+    assert np.abs(pairs[inner, 0]).max() < 1e-2 * np.abs(start[inner]).max()
+    # The stored forces are the state (memory = "maxwell"): what the step returned.
+    assert np.array_equal(b.state["ve_iso"], pairs[:, 0])
+    assert np.array_equal(b.state["ve_dev"], pairs[:, 1])
 
 
 def test_steady_shear_gives_maxwell_stress():
@@ -206,8 +213,8 @@ def test_steady_shear_gives_maxwell_stress():
     assert -0.045 < mu_lat / MU - 1.0 < -0.03
     model = ViscoelasticLPS(K, MU, relaxation_time=tau)
     steps = int(round(10 * tau / dt))          # transient exp(-10) = 5e-5
-    pts, _ = run_shear(model, rate, dt, steps)
-    sigma = virial_shear(pts, stored_pair_forces(pts), interior(pts.x0, N_SHEAR))
+    pts, pairs, _ = run_shear(model, rate, dt, steps)
+    sigma = virial_shear(pts, stored_pair_forces(pts, pairs), interior(pts.x0, N_SHEAR))
     # Maxwell: sigma -> mu tau gamma_dot (1 - exp(-t/tau)). Measured -3.8e-5, the transient
     # exp(-10) = 4.5e-5; the bound 2e-3 (the issue asks 2 %) leaves room for the O(gamma)
     # geometric terms (gamma = 1e-3) and no more.
@@ -219,8 +226,8 @@ def test_memory_none_is_a_viscosity_proportional_to_dt():
     ratios = []
     for dt in (0.02, 0.01):
         model = ViscoelasticLPS(K, MU, memory="none")
-        pts, _ = run_shear(model, rate, dt, steps=10)
-        sigma = virial_shear(pts, stored_pair_forces(pts), interior(pts.x0, N_SHEAR))
+        pts, pairs, _ = run_shear(model, rate, dt, steps=10)
+        sigma = virial_shear(pts, stored_pair_forces(pts, pairs), interior(pts.x0, N_SHEAR))
         ratios.append(sigma / (lattice_shear_modulus() * rate * dt))
     # The force is the last step's increment: sigma = mu gamma_dot dt, i.e. a viscosity
     # eta = mu dt; 1 % covers O(gamma) terms (gamma <= 2e-4).
@@ -255,12 +262,13 @@ def run_isotropic(model, dt, stretches):
     model.setup(pts)
     model.dt = dt
     f = np.empty((pts.n_owned, 2))
+    pairs = np.empty((pts.bonds.n_bonds, 2))
     iso = []
     for s in stretches:
         pts.x[:] = pts.x0 * (1.0 + s)
         model.update_state(pts)
-        model.forces(pts, f)
-        iso.append(pts.bonds.state["ve_iso"].copy())
+        model.forces(pts, f, pairs=pairs)
+        iso.append(pairs[:, 0].copy())
     inner = np.repeat(interior(pts.x0, N_SHEAR), pts.bonds.counts())
     return pts, inner, iso
 
@@ -295,3 +303,33 @@ def test_memory_none_keeps_only_the_last_isotropic_increment():
     r = iso[9][inner] / iso[4][inner]
     assert abs(np.median(r) - ((1 + 4 * a) / (1 + 9 * a)) ** 2) < 1e-8, np.median(r)
     assert np.abs(r - 1.0).max() < 1e-2, np.abs(r - 1.0).max()
+
+
+def test_memory_none_stores_no_forces():
+    # memory = "none" keeps the lengths only (one state array a bond, not three), and its
+    # force is the step's increment alone: the force of a Maxwell model with tau = inf
+    # (decay = gain = 1) whose stored forces are zeroed before every step. The two evaluate
+    # the same expression in the same order, so they agree bit for bit; a "none" model that
+    # kept (or read) a stored force would differ from the second step on.
+    none = ViscoelasticLPS(K, MU, memory="none")
+    zeroed = ViscoelasticLPS(K, MU)
+    a, b = points(2, 10), points(2, 10)
+    none.setup(a)
+    zeroed.setup(b)
+    assert sorted(a.bonds.state) == ["ve_len"]
+    assert sorted(b.bonds.state) == ["ve_dev", "ve_iso", "ve_len"]
+    none.dt = zeroed.dt = 0.1
+    fa, fb = np.empty((a.n_owned, 2)), np.empty((b.n_owned, 2))
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        u = 1e-3 * rng.standard_normal(a.x.shape)
+        a.x += u
+        b.x += u
+        b.bonds.state["ve_iso"][:] = 0.0
+        b.bonds.state["ve_dev"][:] = 0.0
+        for model, pts, f in ((none, a, fa), (zeroed, b, fb)):
+            model.update_state(pts)
+            model.forces(pts, f)
+        assert np.abs(fa).max() > 0.0
+        assert np.array_equal(fa, fb)
+        assert np.array_equal(a.bonds.state["ve_len"], b.bonds.state["ve_len"])
