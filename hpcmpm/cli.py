@@ -135,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     restart = verbs.add_parser("restart", help="continue from a checkpoint",
                                description="Continue a run from a checkpoint, on any rank count.")
-    restart.add_argument("checkpoint", help="a ckpt_SSSSSSSSS.h5 file of the run")
+    restart.add_argument("checkpoint", help="a ckpt_SSSSSSSSS.h5 file of the run, or the run's "
+                         "folder (its newest checkpoint)")
     restart.add_argument("--end-time", type=float, metavar="T",
                          help="simulated time to stop at, later than the checkpoint's "
                               "(default: the end time of the run)")
@@ -153,10 +154,13 @@ def build_parser() -> argparse.ArgumentParser:
                           help="override a scene value before checking (repeatable)")
     validate.set_defaults(handler=_validate)
 
-    info = verbs.add_parser("info", help="describe a frame or checkpoint file",
+    info = verbs.add_parser("info", help="describe a frame, a checkpoint or a run folder",
                             description="What a frame or checkpoint holds; a checkpoint is also "
-                                        "verified against its checksums.")
-    info.add_argument("file", help="a frame_NNNNNN.h5 or ckpt_SSSSSSSSS.h5 file")
+                                        "verified against its checksums. For a run folder: its "
+                                        "frames and checkpoints, whether it reached its end "
+                                        "time, and the command that continues it.")
+    info.add_argument("file", help="a frame_NNNNNN.h5 or ckpt_SSSSSSSSS.h5 file, or a run "
+                      "folder (its frames, checkpoints, state and how to continue it)")
     info.set_defaults(handler=_info)
 
     job = verbs.add_parser("jobscript", help="render a SLURM or PBS job script",

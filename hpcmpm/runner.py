@@ -463,7 +463,7 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
     check_options(args)
     comm = Communicator()
     check_launch(comm)
-    ckpt = Path(args.checkpoint)
+    ckpt = checkpoint_to_restart(Path(args.checkpoint), comm)
     sim, meta, end_time = restore_simulation(str(ckpt), comm, args.end_time)
     if sim.time >= end_time * (1 - 1e-12):
         return nothing_to_run(comm, ckpt, sim.time, end_time, args.end_time is not None)
@@ -481,6 +481,20 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
     runner_frames = int(meta["frame_index"])
     return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True,
                    signal_flag=signal_flag, restored=meta)
+
+
+def checkpoint_to_restart(path: Path, comm: Communicator) -> Path:
+    """``path`` itself, or for a run folder its newest checkpoint (`latest_checkpoint`, chosen
+    on rank 0 so that every rank restarts from the same file)."""
+    if not path.is_dir():
+        return path
+    from .errors import CheckpointError
+    from .io import latest_checkpoint
+
+    newest = comm.bcast(latest_checkpoint(path) if comm.rank == 0 else None)
+    if newest is None:
+        raise CheckpointError(f"{path}: no checkpoint (ckpt_SSSSSSSSS.h5) in this folder")
+    return Path(newest)
 
 
 def nothing_to_run(comm: Communicator, ckpt: Path, time_now: float, end_time: float,

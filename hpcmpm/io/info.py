@@ -1,4 +1,6 @@
-"""``hpcmpm info FILE.h5``: what a frame or checkpoint holds, and whether a checkpoint verifies."""
+"""``hpcmpm info FILE.h5``: what a frame or checkpoint holds, and whether a checkpoint verifies;
+``hpcmpm info RUN_FOLDER``: where a run stands (its frames, its checkpoints, whether it reached
+its end time) and the command that continues it."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from typing import Any
 import h5py
 
 from ..errors import CheckpointError, HpcmpmError
+from .xdmf import FRAME_PATTERN
 
 
 class OutputFileError(HpcmpmError):
@@ -94,6 +97,78 @@ def describe(path) -> list[str]:
     return lines
 
 
+def _attrs(path: Path) -> dict[str, Any]:
+    """A frame's or checkpoint's root attributes (text decoded); {} if it cannot be read."""
+    try:
+        with h5py.File(path, "r") as h5:
+            return {k: _text(v) for k, v in h5.attrs.items()}
+    except OSError:
+        return {}
+
+
+def _time(attrs: dict[str, Any]) -> str:
+    return f"{float(attrs['time']):.9g}" if "time" in attrs else "?"
+
+
+def describe_run(folder) -> tuple[list[str], int]:
+    """The lines ``hpcmpm info RUN_FOLDER`` prints and its exit code: the frames (count, first
+    and last with their times, numbers missing from the series), every checkpoint (step and
+    time, from its attributes), the newest one verified (a failure names the previous one and
+    exits with `CheckpointError.exit_code`), the end time the newest checkpoint records,
+    whether the run reached it, and the command that continues the run. Reads two frames'
+    attributes and one checkpoint in full; raises `OutputFileError` for a folder that holds
+    neither a frame nor a checkpoint."""
+    from .checkpoint import list_checkpoints
+
+    folder = Path(folder)
+    frames = sorted((int(m.group(1)), p) for p in folder.iterdir()
+                    if (m := FRAME_PATTERN.match(p.name)))
+    checkpoints = list_checkpoints(folder)
+    if not frames and not checkpoints:
+        raise OutputFileError(f"{folder}: no frame (frame_NNNNNN.h5) or checkpoint "
+                              f"(ckpt_SSSSSSSSS.h5) here: not a run folder")
+    newest = checkpoints[-1][1] if checkpoints else None
+    last_frame = _attrs(frames[-1][1]) if frames else {}
+    source = _attrs(newest) if newest else last_frame
+    meta = json.loads(source.get("meta", "{}") or "{}")
+    lines = [f"run:         {folder}",
+             f"scene:       {scene_name(source.get('scene', ''), meta.get('scene_path'))}"]
+    if frames:
+        first = _attrs(frames[0][1])
+        lines.append(f"frames:      {len(frames)}: {frames[0][1].name} (t = {_time(first)}) to "
+                     f"{frames[-1][1].name} (t = {_time(last_frame)})")
+        present = {k for k, _ in frames}
+        missing = [k for k in range(frames[0][0], frames[-1][0]) if k not in present]
+        if missing:
+            shown = ", ".join(str(k) for k in missing[:10])
+            lines.append(f"             missing from the series: {len(missing)} ({shown}"
+                         f"{', ...' if len(missing) > 10 else ''})")
+    else:
+        lines.append("frames:      none")
+    if not checkpoints:
+        lines += ["checkpoints: none",
+                  "end time:    not recorded (frames do not hold it; a checkpoint does)",
+                  "continue:    not possible without a checkpoint; run the scene again"]
+        return lines, 0
+    for k, (step, path) in enumerate(checkpoints):
+        lines.append(f"{'checkpoints:' if k == 0 else '':<13}{path.name} (step {step}, "
+                     f"t = {_time(_attrs(path))})")
+    verdict = verify_checkpoint(newest)
+    lines.append(f"newest:      {newest.name}: {verdict}")
+    if verdict.startswith("FAILED"):
+        lines.append("continue:    not from the newest checkpoint (above)")
+        return lines, CheckpointError.exit_code
+    now, end = float(meta.get("time", source.get("time", 0.0))), float(meta["end_time"])
+    lines.append(f"end time:    {end:.9g}")
+    if now >= end * (1 - 1e-12):
+        lines += [f"state:       finished (t = {now:.9g})",
+                  f"continue:    hpcmpm restart {folder} --end-time T (T > {now:.9g})"]
+    else:
+        lines += [f"state:       stopped at t = {now:.9g}, before its end time",
+                  f"continue:    hpcmpm restart {folder}"]
+    return lines, 0
+
+
 def verify_checkpoint(path: Path) -> str:
     """"ok ..." or "FAILED: <what is wrong>", read on this process alone."""
     from .checkpoint import read_checkpoint
@@ -118,10 +193,15 @@ class _SingleProcess:
 
 
 def info_command(args) -> int:
-    """``hpcmpm info FILE.h5`` (``args.file``): print the summary. A missing or foreign file
-    raises `OutputFileError`; a checkpoint that fails verification is printed as such and
-    returns `CheckpointError.exit_code`."""
-    lines = describe(args.file)
+    """``hpcmpm info FILE.h5`` or ``hpcmpm info RUN_FOLDER`` (``args.file``): print the
+    summary (`describe`, `describe_run`). A missing or foreign file raises `OutputFileError`;
+    a checkpoint that fails verification is printed as such and returns
+    `CheckpointError.exit_code`."""
+    if Path(args.file).is_dir():
+        lines, code = describe_run(args.file)
+    else:
+        lines = describe(args.file)
+        code = CheckpointError.exit_code if lines[-1].startswith("checksum:    FAILED") else 0
     for line in lines:
         print(line)
-    return CheckpointError.exit_code if lines[-1].startswith("checksum:    FAILED") else 0
+    return code

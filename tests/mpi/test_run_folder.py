@@ -1,0 +1,131 @@
+"""A run folder as the user meets it: ``hpcmpm info RUN_FOLDER`` says where the run stands and
+how to continue it, and ``hpcmpm restart RUN_FOLDER`` continues from its newest checkpoint, on
+2 ranks as a job script would."""
+
+import json
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from hpcmpm.errors import CheckpointError
+from hpcmpm.io.frames import read_frame
+from hpcmpm.io.info import OutputFileError, describe_run
+from launch import mpi_hpcmpm as hpcmpm
+
+DT = 5e-3
+FIXED = ["--set", f"simulation.dt={DT}", "--set", f"output.every={50 * DT}"]
+
+
+def corrupt(path: Path, dataset: str) -> None:
+    """One byte of ``dataset``'s data flipped in place."""
+    with h5py.File(path, "r") as h5:
+        offset = h5[dataset].id.get_offset()
+    with open(path, "r+b") as f:
+        f.seek(offset)
+        byte = f.read(1)[0]
+        f.seek(offset)
+        f.write(bytes([byte ^ 0xFF]))
+
+
+def last_frame(out: Path):
+    return read_frame(sorted(out.glob("frame_*.h5"))[-1])
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """100 steps of the disks on 2 ranks, checkpoints every 40 steps (80 and the end, 100,
+    are kept)."""
+    out = tmp_path_factory.mktemp("run")
+    hpcmpm(2, "run", "inputs/disks_2d.toml", "--out", str(out), "--quiet", "--end-time",
+           str(100 * DT), "--checkpoint-every", "40", *FIXED)
+    return out
+
+
+def test_info_on_a_finished_run(finished):
+    lines, code = describe_run(finished)
+    assert code == 0
+    assert lines == [
+        f"run:         {finished}",
+        "scene:       disks_2d",
+        "frames:      3: frame_000000.h5 (t = 0) to frame_000002.h5 (t = 0.5)",
+        "checkpoints: ckpt_000000080.h5 (step 80, t = 0.4)",
+        "             ckpt_000000100.h5 (step 100, t = 0.5)",
+        "newest:      ckpt_000000100.h5: ok (every dataset verifies)",
+        "end time:    0.5",
+        "state:       finished (t = 0.5)",
+        f"continue:    hpcmpm restart {finished} --end-time T (T > 0.5)"]
+
+
+def test_restart_from_the_folder_takes_its_newest_checkpoint(tmp_path, finished):
+    """Restarting from step 80 or 100 ends in the same bits, so the restart chain the frames
+    record is what tells which checkpoint was taken."""
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    hpcmpm(2, "restart", str(run), "--end-time", str(150 * DT), "--quiet")
+    got, attrs = last_frame(run)
+    assert attrs["step"] == 150 and attrs["n_ranks"] == 2
+    chain = json.loads(attrs["restart_chain"])
+    assert Path(chain[-1]) == (run / "ckpt_000000100.h5").resolve()
+    # The same as restarting from that file by name, bit for bit.
+    by_name = tmp_path / "by_name"
+    shutil.copytree(finished, by_name)
+    hpcmpm(2, "restart", str(by_name / "ckpt_000000100.h5"), "--end-time", str(150 * DT),
+           "--quiet")
+    ref, _ = last_frame(by_name)
+    for name in ("id", "x", "v", "F"):
+        assert np.array_equal(got[name], ref[name]), name
+
+
+def test_a_stopped_run_is_told_to_continue_and_continues(tmp_path, finished):
+    """Without its last checkpoint the run stands at step 80 (t = 0.4) of its 0.5: info says it
+    stopped before its end time and gives the plain restart, which runs it to 0.5."""
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    (run / "ckpt_000000100.h5").unlink()
+    lines, code = describe_run(run)
+    assert code == 0
+    assert lines[-3:] == ["end time:    0.5", "state:       stopped at t = 0.4, before its end time",
+                          f"continue:    hpcmpm restart {run}"]
+    hpcmpm(2, "restart", str(run), "--quiet")
+    _, attrs = last_frame(run)
+    assert attrs["time"] == pytest.approx(0.5) and attrs["step"] == 100
+
+
+def test_info_reports_a_damaged_newest_checkpoint_and_missing_frames(tmp_path, finished):
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    (run / "frame_000001.h5").unlink()
+    corrupt(run / "ckpt_000000100.h5", "/particles/x")
+    lines, code = describe_run(run)
+    assert code == CheckpointError.exit_code
+    assert "             missing from the series: 1 (1)" in lines
+    assert lines[-2].startswith("newest:      ckpt_000000100.h5: FAILED: ckpt_000000100.h5: "
+                                "checksum mismatch in /particles/x")
+    assert "ckpt_000000080.h5 may still be usable" in lines[-2]
+    assert lines[-1] == "continue:    not from the newest checkpoint (above)"
+
+
+def test_a_folder_without_checkpoints_or_output(tmp_path, finished):
+    frames_only = tmp_path / "frames_only"
+    shutil.copytree(finished, frames_only)
+    for ckpt in frames_only.glob("ckpt_*.h5"):
+        ckpt.unlink()
+    lines, code = describe_run(frames_only)
+    assert code == 0 and lines[-3:] == [
+        "checkpoints: none",
+        "end time:    not recorded (frames do not hold it; a checkpoint does)",
+        "continue:    not possible without a checkpoint; run the scene again"]
+    proc = hpcmpm(2, "restart", str(frames_only), check=False)
+    assert proc.returncode == CheckpointError.exit_code
+    assert f"{frames_only}: no checkpoint (ckpt_SSSSSSSSS.h5) in this folder" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(OutputFileError, match="not a run folder"):
+        describe_run(empty)
+    # The frames the run wrote are intact (the failed restart wrote nothing).
+    with h5py.File(frames_only / "frame_000002.h5") as f:
+        assert f.attrs["step"] == 100
