@@ -33,6 +33,13 @@ class ColourScale:
         return self.cmap(self.norm(values))
 
 
+# A field whose values spread by less than this fraction of their magnitude is drawn as
+# uniform: 1e-12 is about 4500 ulp, above the round-off a run accumulates in a quantity that is
+# uniform in exact arithmetic, and far below any variation a 256-level colour map shows
+# as physics.
+ROUND_OFF_SPREAD = 1e-12
+
+
 def colour_scale(choice: FieldChoice, lo: float, hi: float,
                  material_names: list[str] | None = None) -> ColourScale:
     """Discrete colours for the material index, viridis over [lo, hi] for anything else."""
@@ -49,9 +56,13 @@ def colour_scale(choice: FieldChoice, lo: float, hi: float,
         return ColourScale(cmap, norm, "material", list(range(count)), labels)
     if not (math.isfinite(lo) and math.isfinite(hi)):
         lo, hi = 0.0, 1.0
-    if hi <= lo:  # a uniform field: a small band around the value, so the bar still reads
-        pad = 0.05 * abs(lo) or 0.5
-        lo, hi = lo - pad, hi + pad
+    if hi - lo <= ROUND_OFF_SPREAD * max(abs(lo), abs(hi)):
+        # A uniform field, or one whose spread is round-off (two disks in free flight: speed
+        # 0.1414213562 +- 1e-15 was drawn in the full colour map, its bar labelled
+        # "1e-15 + 1.414213562e-1"): a small band around the value, so the bar still reads.
+        mid = 0.5 * (lo + hi)
+        pad = 0.05 * abs(mid) or 0.5
+        lo, hi = mid - pad, mid + pad
     cmap = colormaps["viridis"].with_extremes(bad="0.6")
     return ColourScale(cmap, Normalize(lo, hi), choice.label)
 

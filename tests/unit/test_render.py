@@ -454,6 +454,16 @@ def test_colour_scales_of_materials_uniform_fields_and_nan():
     uniform = colour_scale(FieldChoice("speed"), 2.0, 2.0)
     assert uniform.norm.vmin < 2.0 < uniform.norm.vmax
     assert uniform.norm(2.0) == pytest.approx(0.5)
+    # A spread of round-off (disks in free flight: speed 0.1414213562 +- 1e-15) is uniform
+    # too: one colour mid-scale, not the whole map over 1e-15.
+    speed = math.sqrt(0.02) + np.array([-1.4e-15, 0.0, 1.5e-15])
+    flat = colour_scale(FieldChoice("speed"), speed.min(), speed.max())
+    assert np.abs(flat.norm(speed) - 0.5).max() < 1e-12
+    assert flat.norm.vmax - flat.norm.vmin == pytest.approx(0.1 * math.sqrt(0.02))
+    # A small physical spread keeps the full map: J within 1e-9 of 1 (a nearly
+    # incompressible fluid) is 1e-9 relative, above round-off.
+    J = 1.0 + np.array([-1e-9, 1e-9])
+    assert list(colour_scale(FieldChoice("J"), J.min(), J.max()).norm(J)) == [0.0, 1.0]
 
     assert finite_range(np.array([np.nan, 5.0, -np.inf, 2.0, np.inf])) == (2.0, 5.0)
     assert finite_range(np.array([np.nan, np.nan])) == (math.inf, -math.inf)
