@@ -31,11 +31,24 @@ def configure_logging(quiet: bool = False) -> None:
 
 
 def _validate(args) -> int:
+    """Each scene's summary, or its problems (one line each); with several scenes every one
+    is checked, a header names each, and the exit code is the worst of theirs."""
     from .scene import load_scene
     from .startup import validate_report
 
-    print(validate_report(load_scene(args.scene, args.set or [])))
-    return 0
+    scenes = args.scene
+    if len(scenes) == 1:
+        print(validate_report(load_scene(scenes[0], args.set or [])))
+        return 0
+    code = 0
+    for path in scenes:
+        print(f"== {path}", flush=True)
+        try:
+            print(validate_report(load_scene(path, args.set or [])), flush=True)
+        except HpcmpmError as exc:
+            report_error(exc)
+            code = max(code, exc.exit_code)
+    return code
 
 
 def _run(args) -> int:
@@ -149,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     validate = verbs.add_parser("validate", help="check a scene file",
                                 description="Check a scene: every problem on its own line "
                                             "(exit 2), or a summary of what it holds.")
-    validate.add_argument("scene", help="the scene's TOML file")
+    validate.add_argument("scene", nargs="+", help="the scene's TOML file (several: each is "
+                          "checked, the exit code is the worst)")
     validate.add_argument("--set", action="append", metavar="KEY.PATH=VALUE",
                           help="override a scene value before checking (repeatable)")
     validate.set_defaults(handler=_validate)
@@ -237,6 +251,15 @@ def _attach_dash_values(argv: list[str]) -> list[str]:
     return out
 
 
+def report_error(exc: HpcmpmError) -> None:
+    """Every HpcmpmError is raised on all ranks alike (errors.py): rank 0 tells the user, once
+    per job, one stderr line per line of the message."""
+    if _rank() == 0:
+        label = getattr(exc, "label", "error")
+        for line in str(exc).splitlines() or [type(exc).__name__]:
+            print(f"hpcmpm: {label}: {line}", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = _attach_dash_values(list(sys.argv[1:] if argv is None else argv))
@@ -251,12 +274,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except HpcmpmError as exc:
-        # Every HpcmpmError is raised on all ranks alike (errors.py): rank 0 tells the user,
-        # once per job, and every rank exits with its code.
-        if _rank() == 0:
-            label = getattr(exc, "label", "error")
-            for line in str(exc).splitlines() or [type(exc).__name__]:
-                print(f"hpcmpm: {label}: {line}", file=sys.stderr)
+        report_error(exc)
         return exc.exit_code
     except KeyboardInterrupt:
         print("hpcmpm: interrupted", file=sys.stderr)

@@ -51,10 +51,30 @@ def test_every_problem_is_reported(tmp_path):
 def test_missing_file_and_valid_inputs():
     proc = hpcmpm("validate", "no/such/scene.toml")
     assert proc.returncode == 2 and "no/such/scene.toml: no such file" in proc.stderr
-    for scene in sorted(Path("inputs").glob("*.toml")):
-        proc = hpcmpm("validate", str(scene))
-        assert proc.returncode == 0, proc.stderr
-        assert "ok (" in proc.stdout
+    # Every shipped scene in one call: a header and an "ok" line each, in the order given.
+    scenes = sorted(str(p) for p in Path("inputs").glob("*.toml"))
+    proc = hpcmpm("validate", *scenes)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    lines = proc.stdout.splitlines()
+    assert [l[3:] for l in lines if l.startswith("== ")] == scenes
+    assert [l.split(": ok (")[0] for l in lines if ": ok (" in l] == scenes
+
+
+def test_several_scenes_are_each_checked_and_the_worst_exit_code_returned(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(GOOD.replace("E = 1000.0", "E = -1.0"))
+    proc = hpcmpm("validate", "inputs/bar_2d.toml", str(bad), "inputs/disks_2d.toml")
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == [
+        f"hpcmpm: error: {bad}: materials[0].E: must be > 0, got -1"]
+    lines = proc.stdout.splitlines()
+    assert lines[0] == "== inputs/bar_2d.toml" and lines[1].startswith(
+        "inputs/bar_2d.toml: ok (")
+    # The bad scene's problems go to stderr; the scene after it is still checked.
+    at = lines.index(f"== {bad}")
+    assert lines[at + 1] == "== inputs/disks_2d.toml"
+    assert lines[at + 2].startswith("inputs/disks_2d.toml: ok (")
+    assert "Traceback" not in proc.stdout + proc.stderr
 
 
 def test_set_overrides_and_round_trip():
