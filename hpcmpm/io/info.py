@@ -133,10 +133,14 @@ def describe_run(folder) -> tuple[list[str], int]:
     meta = json.loads(source.get("meta", "{}") or "{}")
     lines = [f"run:         {folder}",
              f"scene:       {scene_name(source.get('scene', ''), meta.get('scene_path'))}"]
+    chain = json.loads(source.get("restart_chain", "[]") or "[]")
+    if chain:
+        lines.append(f"provenance:  {provenance(chain)}")
     if frames:
-        first = _attrs(frames[0][1])
-        lines.append(f"frames:      {len(frames)}: {frames[0][1].name} (t = {_time(first)}) to "
-                     f"{frames[-1][1].name} (t = {_time(last_frame)})")
+        span = f"{frames[-1][1].name} (t = {_time(last_frame)})"
+        if len(frames) > 1:
+            span = f"{frames[0][1].name} (t = {_time(_attrs(frames[0][1]))}) to {span}"
+        lines.append(f"frames:      {len(frames)}: {span}")
         present = {k for k, _ in frames}
         missing = [k for k in range(frames[0][0], frames[-1][0]) if k not in present]
         if missing:

@@ -47,6 +47,9 @@ def finished(tmp_path_factory) -> Path:
 def test_info_on_a_finished_run(finished):
     lines, code = describe_run(finished)
     assert code == 0
+    assert lines[2].startswith("provenance:  run of ") and lines[2].endswith(
+        "inputs/disks_2d.toml, not restarted")
+    del lines[2]
     assert lines == [
         f"run:         {finished}",
         "scene:       disks_2d",
@@ -69,6 +72,9 @@ def test_restart_from_the_folder_takes_its_newest_checkpoint(tmp_path, finished)
     assert attrs["step"] == 150 and attrs["n_ranks"] == 2
     chain = json.loads(attrs["restart_chain"])
     assert Path(chain[-1]) == (run / "ckpt_000000100.h5").resolve()
+    # info tells the history, and a single frame in a new folder without a range.
+    lines, _ = describe_run(run)
+    assert lines[2].endswith(f"restarted from {(run / 'ckpt_000000100.h5').resolve()}")
     # The same as restarting from that file by name, bit for bit.
     by_name = tmp_path / "by_name"
     shutil.copytree(finished, by_name)
@@ -122,6 +128,11 @@ def test_a_folder_without_checkpoints_or_output(tmp_path, finished):
     assert proc.returncode == CheckpointError.exit_code
     assert f"{frames_only}: no checkpoint (ckpt_SSSSSSSSS.h5) in this folder" in proc.stderr
     assert "Traceback" not in proc.stderr
+    one = tmp_path / "one_frame"
+    one.mkdir()
+    for name in ("frame_000002.h5", "ckpt_000000100.h5"):
+        shutil.copy(finished / name, one / name)
+    assert "frames:      1: frame_000002.h5 (t = 0.5)" in describe_run(one)[0]
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(OutputFileError, match="not a run folder"):

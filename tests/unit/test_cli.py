@@ -180,3 +180,23 @@ def test_every_option_and_positional_has_help_and_the_program_says_what_it_is():
     from hpcmpm.startup import counted
 
     assert counted(1, "material") == "1 material" and counted(2, "material") == "2 materials"
+
+
+def test_a_reader_that_goes_away_ends_the_output_without_a_traceback():
+    """`hpcmpm validate ... | head -1`: the pipe's reader closes before hpcmpm writes; the
+    writer stops quietly with 141 (128 + SIGPIPE, what a shell reports for such a writer)."""
+    import subprocess
+
+    from launch import kill_group
+
+    exe = Path(sys.executable).with_name("hpcmpm")
+    proc = subprocess.Popen([str(exe), "validate", "inputs/bar_2d.toml", "inputs/disks_2d.toml"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        proc.stdout.close()         # before the imports are done: every write meets EPIPE
+        err = proc.stderr.read()
+        proc.wait(timeout=120)
+    finally:
+        kill_group(proc)
+    assert proc.returncode == 141 and err == "", err
