@@ -23,7 +23,8 @@ Each step, before the model's own pass (which then only applies ``max_bond_stret
 
 Two-time integration (``integration = "grid"``): particles with a broken bond (damage > 0)
 move by their own PD force, v <- v^n + dt (f/m + g), x <- x^n + dt v, instead of the grid
-velocity, the domain walls acting on them per particle (contact.py). Their force still reaches
+velocity, the domain walls, the colliders and the prescribed sets acting on them per particle
+(boundary.py, as on off-grid PD bodies). Their force still reaches
 the grid: they are still scattered with their mass and momentum, and the grid near them must
 see the force that balances that momentum for their intact neighbours. The others move with
 the grid as usual.
@@ -37,7 +38,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .contact import ParticleWalls
+from .boundary import OffGridBoundaries
 from .extension import IntegralMPMExtension, PDBodyExtension
 from .geometry import bond_vectors, norm3
 
@@ -279,9 +280,10 @@ class CrackPlaneIntegralMPM(CrackPlaneForces, IntegralMPMExtension):
         at, x_n, v_n, f = self._own
         p = sim.particles
         v = v_n + dt * (f / p["mass"][at, None] + sim.gravity[: sim.dim])
-        if not hasattr(self, "walls"):
-            self.walls = ParticleWalls(sim.scene)
-        self.walls.apply(x_n, v, dt)          # off the grid: walls per particle (contact.py)
+        if not hasattr(self, "boundaries"):
+            self.boundaries = OffGridBoundaries(sim.scene)
+        # Off the grid: walls, colliders and prescribed sets per particle (pd/boundary.py).
+        self.boundaries.apply(sim, at, x_n, v, dt)
         p["v"][at] = v
         p["x"][at] = x_n + dt * v
         self._own = None

@@ -32,9 +32,8 @@ import numpy as np
 from ..errors import SceneError
 from ..parallel.pd_halo import PDHalo, align_rows, redistribute_segments
 from .bonds import Bonds
-from .boundary import impose_prescribed_velocity
+from .boundary import OffGridBoundaries
 from .clamp import face_names
-from .contact import ParticleColliders, ParticleWalls
 from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
@@ -360,8 +359,7 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
 
     def __init__(self, sim, material):
         super().__init__(sim, material)
-        self.walls = ParticleWalls(sim.scene)
-        self.colliders = ParticleColliders(sim.scene)
+        self.boundaries = OffGridBoundaries(sim.scene)
         if sim.uses_grid and sim.domain is not None and sim.domain.rank == 0:
             # Nothing couples off-grid PD particles to the grid's bodies: say so, or a
             # projectile passes through its target without a word.
@@ -379,9 +377,7 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
             v = p["v"][start:stop]
             x = p["x"][start:stop]
             v += dt * (f / p["mass"][start:stop, None] + sim.gravity[: sim.dim])
-            self.walls.apply(x, v, dt)
-            self.colliders.apply(x, v, sim.time, dt)
-            impose_prescribed_velocity(sim, start, stop, v)     # pd/boundary.py (wins)
+            self.boundaries.apply(sim, slice(start, stop), x, v, dt)   # pd/boundary.py
             x += dt * v
             self.write_damage(start, stop)
 

@@ -1,6 +1,7 @@
 """Bond CSR side structure: segments move with their particles, slots resolve through ids."""
 
 import numpy as np
+import pytest
 
 from hpcmpm.pd.bonds import Bonds
 
@@ -70,6 +71,21 @@ def test_resolve_slots_finds_rows_and_nearest_periodic_image():
     assert b.resolve_slots(np.array([10, 11, 13]), x0[[0, 1, 3]]) == 0
     b.status[:] = 1
     assert b.resolve_slots(np.array([10, 11, 13]), x0[[0, 1, 3]]) == 1
+
+
+@pytest.mark.parametrize("near_row", [4, 5])
+def test_resolve_slots_takes_the_nearest_image_whatever_its_row(near_row):
+    """Among the copies of one id (the owned row and periodic images) the partner is the one
+    nearest to the bond's owner in x0, wherever it sits in the rows: here an image (x0 =
+    3.5, 1.5 from particle 2 at x0 = 2) is nearer than the owned row of id 10 (x0 = 0, at
+    2) and the other image (x0 = -10)."""
+    b = small_bonds()
+    ids = np.array([10, 11, 12, 13, 10, 10])
+    x = np.array([0.0, 1.0, 2.0, 3.0, -10.0, -10.0])
+    x[near_row] = 3.5
+    x0 = np.stack([x, np.zeros_like(x)], axis=1)
+    assert b.resolve_slots(ids, x0) == 0
+    assert b.slot.tolist() == [1, 2, near_row, 1, 3]
 
 
 def test_intact_counts():

@@ -111,7 +111,7 @@ def test_pd_block_hitting_a_sphere_does_not_penetrate_it(condition):
     sim = run_body(f'shape = "sphere"\ncenter = [0.5, 0.3]\nradius = 0.15\n'
                    f'condition = "{condition}"', [0.46, 0.51], [0.56, 0.61],
                    [0.0, -3.0], 0.04, observer=observe)
-    hits = sim.extensions[0].colliders.hits
+    hits = sim.extensions[0].boundaries.colliders.hits
     assert hits > 0 and max(deepest) < 1e-6
     # Stopped or thrown back by the disk: the block no longer moves down at 3 m/s.
     assert np.mean(sim.particles["v"][:, 1]) > -1.0

@@ -115,8 +115,8 @@ def test_two_time_integration_moves_cracked_particles_by_their_own_force():
     """003 §5.4's two-time integration: on the grid, particles with a broken bond leave the
     grid's update and take a symplectic Euler step by their own PD force f, v = v^n + dt (f/m
     + g), x = x^n + dt v, from the state before the step (`CrackPlaneIntegralMPM.after_g2p`);
-    every other particle keeps what G2P gave it. Unit test on the method alone (the walls
-    stubbed out; they are tested in test_pd_colliders.py)."""
+    every other particle keeps what G2P gave it. Unit test on the method alone (the off-grid
+    boundaries stubbed out; tested below and in test_pd_colliders.py)."""
     from types import SimpleNamespace
 
     from hpcmpm.pd.crack_planes import CrackPlaneIntegralMPM
@@ -128,7 +128,7 @@ def test_two_time_integration_moves_cracked_particles_by_their_own_force():
     x_n, v_n, f = rng.random((2, 2)), rng.random((2, 2)), rng.normal(size=(2, 2))
     ext = object.__new__(CrackPlaneIntegralMPM)
     ext._own = (at, x_n.copy(), v_n.copy(), f.copy())
-    ext.walls = SimpleNamespace(apply=lambda x, v, dt: None)
+    ext.boundaries = SimpleNamespace(apply=lambda sim, rows, x, v, dt: None)
     g, dt = np.array([0.0, -10.0, 0.0]), 0.1
     ext.after_g2p(SimpleNamespace(particles=p, gravity=g, dim=2), dt)
     v = v_n + dt * (f / p["mass"][at, None] + g[:2])
@@ -138,3 +138,153 @@ def test_two_time_integration_moves_cracked_particles_by_their_own_force():
     for k in ("x", "v"):
         assert np.array_equal(p[k][rest], grid_update[k][rest])
     assert ext._own is None                    # used once
+
+
+def test_two_time_integration_takes_the_particles_with_a_broken_bond():
+    """`CrackPlaneIntegralMPM.particle_forces` keeps, for `after_g2p`, the rows of the
+    group with damage > 0 (a broken bond) with their x^n, v^n and force, and only those;
+    none with ``two_time_integration = false``. The parent's force pass is stubbed: the
+    damage values include exact zeros next to tiny positive ones."""
+    from types import SimpleNamespace
+
+    from hpcmpm.pd.crack_planes import CrackPlaneIntegralMPM
+    from hpcmpm.pd.extension import IntegralMPMExtension
+
+    rng = np.random.default_rng(8)
+    n, start, stop = 12, 3, 10
+    damage = np.zeros(n)
+    damage[[1, 4, 7, 9, 11]] = [0.5, 1e-12, 0.25, 1.0, 0.3]     # rows 1 and 11 not in the group
+    p = {"x": rng.random((n, 2)), "v": rng.random((n, 2)), "damage": damage}
+    f = rng.normal(size=(stop - start, 2))
+
+    def parent(self, sim, dt):
+        yield start, stop, f
+
+    for two_time in (True, False):
+        ext = object.__new__(CrackPlaneIntegralMPM)
+        ext.material = SimpleNamespace(params={"two_time_integration": two_time})
+        original = IntegralMPMExtension.particle_forces
+        IntegralMPMExtension.particle_forces = parent
+        try:
+            out = list(ext.particle_forces(SimpleNamespace(particles=p), 0.1))
+        finally:
+            IntegralMPMExtension.particle_forces = original
+        assert len(out) == 1 and out[0][2] is f
+        if not two_time:
+            assert ext._own is None
+            continue
+        at, x_n, v_n, f_own = ext._own
+        assert at.tolist() == [4, 7, 9]
+        assert np.array_equal(x_n, p["x"][at]) and np.array_equal(v_n, p["v"][at])
+        assert np.array_equal(f_own, f[at - start])
+
+
+def test_two_time_integration_stops_cracked_particles_at_the_walls():
+    """Off the grid, the domain walls act on the particles of the two-time integration per
+    particle (contact.py), before their position update: a particle about to cross the
+    slip floor loses its normal velocity and lands on x^n + dt v with v_y = 0; one about to
+    cross the slip side wall loses v_x; one in the interior keeps v^n + dt (f/m + g)."""
+    from types import SimpleNamespace
+
+    from hpcmpm.pd.crack_planes import CrackPlaneIntegralMPM
+
+    scene = parse_scene(PLATE, path="plate.toml")        # walls: default = "slip"
+    dt = 1e-3
+    x_n = np.array([[0.5, 0.004], [0.996, 0.5], [0.5, 0.5]])
+    v_n = np.array([[3.0, -10.0], [10.0, 2.0], [3.0, -10.0]])
+    f = np.zeros((3, 2))
+    p = {"x": np.zeros((3, 2)), "v": np.zeros((3, 2)), "mass": np.ones(3)}
+    ext = object.__new__(CrackPlaneIntegralMPM)
+    ext._own = (np.arange(3), x_n.copy(), v_n.copy(), f)
+    g = np.zeros(3)
+    ext.after_g2p(SimpleNamespace(particles=p, gravity=g, dim=2, scene=scene, time=0.0), dt)
+    want_v = np.array([[3.0, 0.0], [0.0, 2.0], [3.0, -10.0]])
+    assert np.array_equal(p["v"], want_v)
+    assert np.array_equal(p["x"], x_n + dt * want_v)
+    assert p["x"][:, 1].min() >= 0.0 and p["x"][:, 0].max() <= 1.0
+
+
+COLLIDER = """
+[[colliders]]
+shape = "sphere"
+center = [0.5, 0.5]
+radius = 0.1
+condition = "sticky"
+"""
+
+
+def test_two_time_integration_applies_the_colliders_and_prescribed_sets():
+    """Off the grid the colliders and prescribed sets act per particle too, as on off-grid PD
+    bodies (pd/boundary.py): particle 0 at x = 0.395 moving at +10 toward a sticky sphere
+    whose surface is at x = 0.4 would end inside it (0.405 after dt = 1e-3) and takes the
+    sphere's velocity, 0; particle 1, in a prescribed set (V = (0.5, -1), omega = 2 about
+    c(t) = (0.2, 0.2) + V t), takes the set's rigid velocity at x^n, whatever its own force;
+    particle 2, free and far from both, keeps v^n + dt f/m. Before the fix the two-time step
+    applied the walls alone: particle 0 kept v = (10, 0) and entered the sphere, particle 1
+    left its set."""
+    from types import SimpleNamespace
+
+    from hpcmpm.boundaries.prescribed import PrescribedSet
+    from hpcmpm.pd.crack_planes import CrackPlaneIntegralMPM
+
+    scene = parse_scene(PLATE + COLLIDER, path="plate.toml")
+    spec = SimpleNamespace(region={"lower": [0.0, 0.0], "upper": [0.4, 0.4]},
+                           velocity=[0.5, -1.0], angular_velocity=2.0, center=[0.2, 0.2])
+    dt, t = 1e-3, 0.25
+    x_n = np.array([[0.395, 0.5], [0.3, 0.25], [0.8, 0.8]])
+    v_n = np.array([[10.0, 0.0], [4.0, 4.0], [1.0, 2.0]])
+    f = np.array([[0.0, 0.0], [5.0, 5.0], [3.0, -1.0]])
+    p = {"x": np.zeros((4, 2)), "v": np.zeros((4, 2)), "mass": np.full(4, 2.0),
+         "prescribed": np.array([-1, -1, 0, -1], np.int32)}
+    ext = object.__new__(CrackPlaneIntegralMPM)
+    at = np.array([0, 2, 3])                 # rows of the particle set, not contiguous
+    ext._own = (at, x_n.copy(), v_n.copy(), f.copy())
+    sim = SimpleNamespace(particles=p, gravity=np.zeros(3), dim=2, scene=scene, time=t,
+                          prescribed=[PrescribedSet(spec, 0, 2)])
+    ext.after_g2p(sim, dt)
+    c = np.array([0.2, 0.2]) + np.array([0.5, -1.0]) * t
+    r = x_n[1] - c
+    rigid = np.array([0.5, -1.0]) + 2.0 * np.array([-r[1], r[0]])
+    # Rows 0 and 2: exact values; row 3: the same operations as the test's (bitwise).
+    assert np.array_equal(p["v"][0], [0.0, 0.0])
+    np.testing.assert_allclose(p["v"][2], rigid, rtol=0, atol=1e-15)
+    assert np.array_equal(p["v"][3], v_n[2] + dt * f[2] / 2.0)
+    assert np.array_equal(p["x"][at], x_n + dt * p["v"][at])
+    assert np.array_equal(p["v"][1], [0.0, 0.0])          # not in the two-time rows
+
+
+def test_crack_planes_see_the_bonds_plastic_stretch():
+    """With bond plasticity (``model = "bond_energy"``), l = (s - e_p) / (1 + p_bar) reads
+    the bonds' plastic stretch (`CrackPlaneForces.compute_forces`): under a uniform stretch
+    of 2 l_threshold every bond would break, but a plastic stretch of 1.5 l_threshold on
+    every bond keeps them all (l = 0.5 l_threshold)."""
+    from hpcmpm.pd.crack_planes import CrackPlanes
+
+    from hpcmpm.pd.crack_planes import CrackPlaneIntegralMPM
+
+    text = open("inputs/ibmpm_wall_fracture_2d.toml").read()
+    threshold = 0.05
+    assert f"crack_threshold = {threshold}" in text
+    scene = parse_scene(text, path="wall.toml")
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    sim.ensure_grouped()
+    (ext,) = [e for e in sim._force_sources if isinstance(e, CrackPlaneIntegralMPM)]
+    start, stop = ext.prepare()
+    seen = []
+    original = CrackPlanes.apply
+
+    def spy(self, pts, comm, plastic=None):
+        seen.append(plastic)
+        return original(self, pts, comm, plastic)
+
+    CrackPlanes.apply = spy
+    try:
+        ext.bonds.state["plastic_stretch"][:] = 1.5 * threshold
+        x0 = ext.pts.x0
+        ext.pts.x[:] = x0 + 2.0 * threshold * (x0 - x0.mean(axis=0))
+        ext.compute_forces(start, stop)
+    finally:
+        CrackPlanes.apply = original
+    assert len(seen) == 1 and seen[0] is ext.bonds.state["plastic_stretch"]
+    assert ext.crack_planes.planes == 0 and np.all(ext.bonds.status == 1)

@@ -180,3 +180,48 @@ def test_flags_by_the_cell_at_the_p2g_position():
     # (1, 2) (corners (1..2, 2..3), none flagged); at x the cells (4, 2) and (2, 2) would
     # flag particle 1 instead.
     assert out[:count].tolist() == [0]
+
+
+@pytest.mark.parametrize("corner", list(itertools.product((0, 1), repeat=3)))
+def test_flags_3d_by_any_corner_of_the_cell_at_the_p2g_position(corner):
+    """3D: each of the 8 corners of the cell at x^n = x - dt v flags the particle; the cell
+    at x (two cells further along every axis) does not count. The second particle's x^n
+    cell touches no flagged node, its x cell does."""
+    dx, dt = 1.0, 0.1
+    origin = np.zeros(3, np.int64)
+    G = np.zeros((8, 8, 8))
+    node = tuple(2 + c for c in corner)
+    G[node] = 10.0                                  # only this node reaches the threshold
+    x_n = np.array([[2.5, 2.5, 2.5], [0.5, 0.5, 0.5]])
+    v = np.full((2, 3), 20.0)                       # dt v = two cells along each axis
+    x = x_n + dt * v                                # cells (4, 4, 4) and (2, 2, 2)
+    model = np.zeros(2, np.int8)
+    out = np.empty(2, np.int64)
+    count, margin = ge.FLAGGED_PARTICLES[3](x, v, dt, np.arange(2, dtype=np.int64), model, G,
+                                            10.0, np.zeros(3), dx, origin, out)
+    assert out[:count].tolist() == [0]
+    assert margin == 0.0
+    model[0] = 1                                    # already PD: not flagged again
+    count, _ = ge.FLAGGED_PARTICLES[3](x, v, dt, np.arange(2, dtype=np.int64), model, G, 10.0,
+                                       np.zeros(3), dx, origin, out)
+    assert count == 0
+
+
+def test_tensile_energy_with_a_negative_poisson_ratio_is_not_skipped():
+    """3D skips the eigen-solve when Phi <= c sigma:sigma cannot exceed the history EE_p;
+    for tensile_energy c = max(1 + nu, 1 - 2 nu) / (2E). With nu < 0 the bound is (1 - 2nu)
+    / (2E): hydrostatic tension s has sigma+ = sigma, sigma+:sigma+ = sigma:sigma = 3 s^2,
+    (tr sigma+)^2 = 9 s^2, Phi = (3 (1 + nu) - 9 nu) s^2 / (2E) = 5.4 s^2 / (2E) at nu = -0.4,
+    above (1 + nu) sigma:sigma / (2E) = 1.8 s^2 / (2E). A history EE_p = 0.8 Phi must be
+    raised to Phi."""
+    nu, s = -0.4, 5.0
+    F = np.eye(3)[None].copy()
+    tau = (s * np.eye(3))[None].copy()
+    phi = (3 * (1 + nu) - 9 * nu) * s ** 2 / (2 * E)
+    x = np.full((1, 3), 2.5)
+    for start in (0.0, 0.8 * phi):
+        EE = np.array([start])
+        ge.ENERGY_HISTORY[3](x, np.ones(1), tau, F, EE, ge.TENSILE_ENERGY, E, nu, static(2),
+                             1.0, np.zeros(3), np.zeros(3, np.int64), np.zeros((6, 6, 6)))
+        # rel 1e-14: a few products of exact small numbers (measured equal to the last bit).
+        assert EE[0] == pytest.approx(phi, rel=1e-14)
