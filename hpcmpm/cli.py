@@ -252,6 +252,10 @@ def _attach_dash_values(argv: list[str]) -> list[str]:
     return out
 
 
+# Verbs that use no MPI: under a launcher every copy would print the same lines.
+SINGLE_PROCESS_VERBS = ("validate", "info", "jobscript")
+
+
 def report_error(exc: HpcmpmError) -> None:
     """Every HpcmpmError is raised on all ranks alike (errors.py): rank 0 tells the user, once
     per job, one stderr line per line of the message."""
@@ -272,6 +276,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(unknown)}")
         args.bench_args = unknown + list(args.bench_args)
     configure_logging(getattr(args, "quiet", False))
+    if args.verb in SINGLE_PROCESS_VERBS and _rank() != 0:
+        # `mpiexec -n N hpcmpm validate ...` runs N copies of a single-process verb: each
+        # does the work and exits with its code, rank 0 alone prints (as errors are).
+        sys.stdout = open(os.devnull, "w")
     try:
         return int(args.handler(args) or 0)
     except HpcmpmError as exc:

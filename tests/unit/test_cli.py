@@ -200,3 +200,18 @@ def test_a_reader_that_goes_away_ends_the_output_without_a_traceback():
     finally:
         kill_group(proc)
     assert proc.returncode == 141 and err == "", err
+
+
+def test_single_process_verbs_print_once_under_a_launcher(tmp_path):
+    """`mpiexec -n 2 hpcmpm validate` starts two copies of a verb that uses no MPI; rank 0
+    alone prints its report (each copy printed it before), an error too, and both exit
+    with the same code."""
+    from launch import mpi_hpcmpm
+
+    proc = mpi_hpcmpm(2, "validate", "inputs/bar_2d.toml")
+    assert proc.stdout.count("inputs/bar_2d.toml: ok (") == 1, proc.stdout
+    bad = tmp_path / "bad.toml"
+    bad.write_text(GOOD.replace("E = 1000.0", "E = -1.0"))
+    proc = mpi_hpcmpm(2, "validate", str(bad), check=False)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("materials[0].E: must be > 0") == 1, proc.stderr
