@@ -106,6 +106,9 @@ def _render(args) -> int:
 def _plot(args) -> int:
     from .viz.diagnostics import plot_command
 
+    if _rank() != 0:
+        # `mpiexec -n N hpcmpm plot`: one process writes the files (N would race on them).
+        return 0
     return plot_command(args)
 
 

@@ -34,3 +34,10 @@ def test_two_ranks_render_what_one_rank_renders(tmp_path):
     for a, b in zip(one, two):
         assert np.array_equal(pixels(a), pixels(b)), a.name
     assert movie_frame_count(tmp_path / "two" / "render.gif") == 4
+    # `hpcmpm plot` under the launcher: rank 0 alone writes the two files (two processes
+    # would race on them) and says so once; its table is the one process's.
+    assert main(["plot", str(run), "--out", str(tmp_path / "plot1")]) == 0
+    proc = mpi_hpcmpm(2, "plot", str(run), "--out", str(tmp_path / "plot2"))
+    assert proc.stdout.count("wrote ") == 1, proc.stdout
+    assert (tmp_path / "plot2" / "diagnostics.csv").read_text() == \
+        (tmp_path / "plot1" / "diagnostics.csv").read_text()
