@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -10,6 +11,9 @@ from tqdm import tqdm
 
 BAR_FORMAT = "{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}{postfix}]"
 COMPILING_FORMAT = "{l_bar}{bar}| t={n:.4g}/{total:.4g} [compiling, first step]"
+# A run without an end (`--end-time inf`, stopped by a signal): no bar, no ETA.
+OPEN_FORMAT = "t={n:.4g} [{elapsed}{postfix}]"
+OPEN_COMPILING_FORMAT = "t={n:.4g} [compiling, first step]"
 
 
 class Progress:
@@ -32,8 +36,10 @@ class Progress:
         if self.disabled:
             return
         # Until the first step is done its time is mostly compilation: no ETA from it.
-        self.bar = tqdm(total=self.end_time, initial=sim_time, unit="t", file=sys.stderr,
-                        dynamic_ncols=True, bar_format=COMPILING_FORMAT, leave=True)
+        ends = math.isfinite(self.end_time)
+        self.bar = tqdm(total=self.end_time if ends else None, initial=sim_time, unit="t",
+                        file=sys.stderr, dynamic_ncols=True, leave=True,
+                        bar_format=COMPILING_FORMAT if ends else OPEN_COMPILING_FORMAT)
         self.bar.refresh()
 
     def update(self, sim_time: float, step: int, dt: float) -> None:
@@ -47,7 +53,7 @@ class Progress:
             self._t0, self._step0 = now, step
             self.bar.start_t = self.bar._time()
             self.bar.initial = self.bar.n = min(sim_time, self.end_time)
-            self.bar.bar_format = BAR_FORMAT
+            self.bar.bar_format = BAR_FORMAT if math.isfinite(self.end_time) else OPEN_FORMAT
             self.bar.set_postfix_str(f"step {step}, dt {dt:.3g}", refresh=False)
             self.bar.refresh()
             self._last_refresh = now

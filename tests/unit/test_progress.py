@@ -43,3 +43,20 @@ def test_rate_counts_the_timed_steps_over_the_timed_wall_time(monkeypatch):
     bar.update(0.5, 11, 0.04)
     assert "step 11, dt 0.04, 500 particle-steps/s" in str(bar.bar)
     bar.close()
+
+
+def test_a_run_without_an_end_shows_time_and_rate_without_a_bar(capsys):
+    """`hpcmpm run --end-time inf` (a run stopped by the scheduler's signal): tqdm cannot
+    draw a bar to infinity (it raised a TypeError in the first redraw); the line shows the
+    simulated time, the step and the rate, no total and no ETA."""
+    progress = Progress(end_time=float("inf"), n_particles=100)
+    progress.start(0.0, 0)
+    assert "compiling, first step" in str(progress.bar)
+    progress.update(0.1, 1, 0.1)
+    time.sleep(0.6)                      # past the redraw interval
+    progress.update(0.35, 5, 0.1)
+    text = str(progress.bar)
+    assert text.startswith("t=0.35 [") and "step 5" in text and "particle-steps/s" in text
+    assert "inf" not in text and "<" not in text
+    progress.close()
+    assert "t=0.35" in capsys.readouterr().err
