@@ -488,6 +488,10 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
     t = c.table(raw, "output", "")
     c.keys(t, "output", ("every", "fields", "checkpoint_every", "checkpoint_keep"))
     every = c.number(t, "every", "output", None, low=0.0)
+    if every is None and end_time is not None and math.isinf(end_time):
+        c.problem("output.every", "required when simulation.end_time is inf (a run that ends "
+                  "only when stopped): its default, end_time, would give the frame at t = 0 "
+                  "alone")
     fields = t.get("fields", [])
     if not isinstance(fields, list) or not all(isinstance(f, str) for f in fields):
         c.problem("output.fields", f"must be an array of strings, got {_describe(fields)}")

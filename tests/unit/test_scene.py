@@ -166,6 +166,12 @@ CASES = {
                     "A = 1.0, T_melt = 200.0 }"),
         "materials[0]: material 'rubber' (j2): hardening.T_melt: must be > T_room = 293, "
         "got 200"),
+    # A run without an end needs a frame interval: the default (end_time) gave t = 0 only.
+    "end_time_inf_without_every": (GOOD.replace("end_time = 3.0", "end_time = inf")
+                                   .replace("every = 0.1", ""),
+                                   "output.every: required when simulation.end_time is inf (a "
+                                   "run that ends only when stopped): its default, end_time, "
+                                   "would give the frame at t = 0 alone"),
     "dt_negative": (GOOD.replace("cfl = 0.4", "cfl = 0.4\ndt = -0.01"),
                     "simulation.dt: must be > 0.0, got -0.01"),
     # An infinite fixed step passed validation and blew up at the first step (exit 3).
@@ -480,3 +486,12 @@ def test_output_fields_offered_are_the_fields_the_run_allocates(path):
     scene = load_scene(path)
     allocated = set(Simulation(scene, make_domain(scene)).particles.specs)
     assert set(offered) == allocated | {"tau"}, (offered, allocated)
+
+
+def test_a_run_without_an_end_is_accepted_with_a_frame_interval():
+    """`end_time = inf`: a run that ends when a signal stops it (SIGTERM/SIGUSR1 write a
+    checkpoint), with its frames every output.every."""
+    from hpcmpm.scene import parse_scene
+
+    scene = parse_scene(GOOD.replace("end_time = 3.0", "end_time = inf"), path="s.toml")
+    assert math.isinf(scene.end_time) and scene.output.every == 0.1
