@@ -158,6 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
                          help="simulated time to stop at, later than the checkpoint's "
                               "(default: the end time of the run)")
     restart.add_argument("--out", help="output folder (default: the checkpoint's folder)")
+    restart.add_argument("--force", action="store_true",
+                         help="replace another run's output in --out")
     restart.add_argument("--quiet", action="store_true", help=QUIET_HELP)
     restart.add_argument("--checkpoint-every", type=int, metavar="N", help=CHECKPOINT_EVERY_HELP)
     restart.add_argument("--checkpoint-wall", metavar="HH:MM:SS", help=CHECKPOINT_WALL_HELP)

@@ -469,7 +469,11 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
         return nothing_to_run(comm, ckpt, sim.time, end_time, args.end_time is not None)
     sim.domain.install_abort_hook()
     out_dir = Path(args.out) if args.out else ckpt.parent
-    if args.out:
+    if args.out and out_dir.resolve() != ckpt.parent.resolve():
+        # Another folder: like `run`, never mix into another run's output without --force
+        # (the continued series would sit beside the other run's frames and XDMF entries).
+        prepare_output_dir(comm, out_dir, bool(getattr(args, "force", False)))
+    elif args.out:
         make_output_dir(comm, out_dir)
     chain = list(meta.get("restart_chain", [])) + [str(ckpt.resolve())]
     options = RunOptions(out_dir=out_dir, end_time=end_time, quiet=bool(args.quiet),

@@ -140,3 +140,29 @@ def test_a_folder_without_checkpoints_or_output(tmp_path, finished):
     # The frames the run wrote are intact (the failed restart wrote nothing).
     with h5py.File(frames_only / "frame_000002.h5") as f:
         assert f.attrs["step"] == 100
+
+
+def test_restart_into_another_runs_folder_needs_force(tmp_path, finished):
+    """`hpcmpm restart CKPT --out DIR` where DIR holds another run's output: refused as
+    `run` refuses it (exit 5, nothing written); it wrote its frames beside the other run's
+    before. With --force the other run's output is replaced; into the checkpoint's own
+    folder --out is allowed as before."""
+    other = tmp_path / "other"
+    shutil.copytree(finished, other)          # a run of its own (the same scene, no matter)
+    before = sorted(p.name for p in other.iterdir())
+    ckpt = finished / "ckpt_000000100.h5"
+    proc = hpcmpm(1, "restart", str(ckpt), "--out", str(other), "--end-time", str(110 * DT),
+                  "--quiet", check=False)
+    assert proc.returncode == 5, proc.stderr
+    assert "already holds output of another run" in proc.stderr and "--force" in proc.stderr
+    assert sorted(p.name for p in other.iterdir()) == before
+    hpcmpm(1, "restart", str(ckpt), "--out", str(other), "--end-time", str(110 * DT),
+           "--quiet", "--force")
+    # Replaced: only the continuation's own frame and checkpoint are there.
+    assert sorted(p.name for p in other.glob("*.h5") if not p.name.startswith("polyvertex")) \
+        == ["ckpt_000000110.h5", "frame_000003.h5"]
+    own = tmp_path / "own"
+    shutil.copytree(finished, own)
+    hpcmpm(1, "restart", str(own / "ckpt_000000100.h5"), "--out", str(own), "--end-time",
+           str(110 * DT), "--quiet")
+    assert (own / "ckpt_000000110.h5").exists() and (own / "frame_000000.h5").exists()
