@@ -74,7 +74,7 @@ def render(scheduler: str, scene: str, nodes: int, ranks_per_node: int, walltime
         "extra_args": extra, "end_time_arg": "", "script_path": script_path,
         "srun_mpi": "" if srun_mpi == "default" else f" --mpi={srun_mpi}",
     }
-    return Template(template_path(scheduler).read_text()).safe_substitute(mapping)
+    return Template(template_path(scheduler).read_text(encoding="utf-8")).safe_substitute(mapping)
 
 
 def default_out_dir(scene: str, out_dir: str | None) -> str:
@@ -111,7 +111,7 @@ def jobscript_command(args, parser) -> int:
     log_dir = Path(default_out_dir(args.scene, getattr(args, "out", None)))
     log_dir.mkdir(parents=True, exist_ok=True)
     if output:
-        Path(output).write_text(text)
+        Path(output).write_text(text, encoding="utf-8")
         Path(output).chmod(0o755)
         print(f"wrote {output} (created {log_dir}/ for its log); submit it from {Path.cwd()} "
               f"(the relative paths in it start there): "

@@ -943,7 +943,9 @@ def load_scene(path, overrides: Sequence[str] = ()) -> Scene:
     """Read and validate a scene file (``--set`` overrides applied first)."""
     p = Path(path)
     try:
-        text = p.read_text()
+        # TOML is UTF-8 whatever the locale says; a byte-order mark (Windows editors write
+        # one) is not part of the text: tomllib called it "Invalid statement" at 1:1.
+        text = p.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise SceneError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:

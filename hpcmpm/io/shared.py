@@ -81,7 +81,7 @@ def replace_atomically(tmp: Path, path: Path, fsync: bool) -> None:
 
 def write_text_atomically(path: Path, text: str) -> None:
     tmp = tmp_name(path)
-    tmp.write_text(text)
+    tmp.write_text(text, encoding="utf-8")    # XML and scene text: UTF-8, whatever the locale
     os.replace(tmp, path)
 
 

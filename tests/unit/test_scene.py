@@ -339,6 +339,37 @@ def test_load_scene_reports_a_file_it_cannot_read(tmp_path):
         (line,) = info.value.problems
         assert line.startswith(f"{path}: cannot read: "), line
 
+
+def test_a_scene_is_read_as_utf8_with_or_without_a_byte_order_mark(tmp_path):
+    """TOML is UTF-8: a scene saved with a byte-order mark (Windows editors) is the same
+    scene, not "TOML syntax error: Invalid statement (at line 1, column 1)"; and a shipped
+    scene with a non-ASCII comment (10 of them cite sections as "§") loads under a locale
+    whose encoding is ASCII (a cluster's LC_ALL without UTF-8), where it was "cannot read:
+    'ascii' codec can't decode byte 0xc2"."""
+    import os
+    import subprocess
+    import sys
+
+    text = GOOD.replace('"lower_left"', '"Scheibe_ü"')
+    plain, bom = tmp_path / "plain.toml", tmp_path / "bom.toml"
+    plain.write_bytes(text.encode("utf-8"))
+    bom.write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+    a, b = load_scene(plain), load_scene(bom)
+    assert a.text == b.text and a.bodies == b.bodies and a.materials == b.materials
+    assert a.bodies[0].name == "Scheibe_ü"
+    scene = "inputs/disks_2d.toml"
+    assert "§" in Path(scene).read_text(encoding="utf-8")
+    env = {**os.environ, "LC_ALL": "C.ISO-8859-1", "PYTHONUTF8": "0",
+           "PYTHONIOENCODING": "utf-8"}
+    code = (f"import locale; from hpcmpm.scene import load_scene; "
+            f"print(locale.getpreferredencoding(False), load_scene({scene!r}).dim)")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    encoding, dim = out.stdout.split()
+    assert encoding != "UTF-8" and dim == "2", out.stdout
+
+
 def test_dataclasses_and_defaults():
     scene = parse_scene(GOOD, "s.toml")
     assert isinstance(scene, Scene)
