@@ -160,17 +160,20 @@ class Bonds:
         if m == 0:
             return
         status = np.ones(m, np.int8) if status is None else np.asarray(status, np.int8)
-        owner = np.concatenate([np.repeat(np.arange(self.n), self.counts()), rows])
         new = {"partner": partner, "weight": np.asarray(weight, np.float64), "status": status,
                "slot": np.full(m, -1, np.int32)}
         new.update({"state." + k: np.zeros(m) for k in self.state})
-        all_partner = np.concatenate([self.partner, partner])
-        order = np.lexsort((all_partner, owner))
-        if np.any((np.diff(owner[order]) == 0) & (np.diff(all_partner[order]) == 0)):
+        # The segments are ordered already: sort the new half-bonds alone and merge them in,
+        # O(bonds + m log m) where sorting everything cost a lexsort of all the bonds at each
+        # SPB conversion (80-100 ms of a 270 ms step on watermelon_3d's 3000 PD particles).
+        fresh = np.lexsort((partner, rows))
+        order, counts = merged_order(self.offsets, self.partner, rows[fresh], partner[fresh],
+                                     fresh)
+        if len(order) == 0:
             raise ValueError("merge would duplicate a bond")
         for name, arr in self._arrays().items():
             self._set(name, np.concatenate([arr, new[name].astype(arr.dtype)])[order])
-        self.offsets = _offsets(np.bincount(owner, minlength=self.n))
+        self.offsets = _offsets(counts)
 
     def _set(self, name: str, arr: np.ndarray) -> None:
         if name.startswith("state."):
@@ -212,6 +215,43 @@ def segment_index(offsets, rows):
             out[k] = b
             k += 1
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def merged_order(offsets, partner, rows, new_partner, new_index):
+    """The order of the half-bonds of segments ``offsets``/``partner`` (each ordered by
+    partner) with new half-bonds (``rows``, ``new_partner``, sorted by row then partner; new
+    half-bond k is entry len(partner) + new_index[k] of the concatenation) merged in, every
+    segment ordered by partner; and the new counts per row. An empty order when a new
+    half-bond repeats an existing one or another new one."""
+    n = len(offsets) - 1
+    n_old = len(partner)
+    m = len(rows)
+    order = np.empty(n_old + m, dtype=np.int64)
+    counts = np.empty(n, dtype=np.int64)
+    pos = 0
+    k = 0
+    for p in range(n):
+        i = offsets[p]
+        end = offsets[p + 1]
+        start = pos
+        while True:
+            fresh = k < m and rows[k] == p
+            if fresh and k + 1 < m and rows[k + 1] == p and new_partner[k + 1] == new_partner[k]:
+                return np.empty(0, dtype=np.int64), counts
+            if i < end and (not fresh or partner[i] < new_partner[k]):
+                order[pos] = i
+                i += 1
+            elif fresh:
+                if i < end and partner[i] == new_partner[k]:
+                    return np.empty(0, dtype=np.int64), counts
+                order[pos] = n_old + new_index[k]
+                k += 1
+            else:
+                break
+            pos += 1
+        counts[p] = pos - start
+    return order, counts
 
 
 @njit(cache=True, error_model="numpy")

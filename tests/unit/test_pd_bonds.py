@@ -99,6 +99,47 @@ def test_merge_keeps_segments_ordered_by_partner_id():
     assert segment(b, 1) == ([20], [0.3], [1], [0.0])
     assert segment(b, 2) == ([10, 11, 12, 13], [0.25, 0.75, 0.2, 1.0], [1, 1, 1, 1],
                              [3.0, 4.0, 0.0, 5.0])
-    import pytest
     with pytest.raises(ValueError, match="duplicate"):
         b.merge([0], [11], [1.0])
+    with pytest.raises(ValueError, match="duplicate"):          # twice among the new ones
+        b.merge([1, 1], [30, 30], [1.0, 1.0])
+
+
+def test_merge_equals_sorting_everything():
+    """`merge` merges the new half-bonds into the ordered segments (a linear pass); the
+    result must be what sorting all half-bonds by (row, partner) gives, every array and
+    the offsets, for random segments (empty ones included) and random new bonds in random
+    order."""
+    rng = np.random.default_rng(3)
+    n = 40
+    counts = rng.integers(0, 6, n)
+    counts[[0, 7, 39]] = 0
+    partner = np.concatenate([np.sort(rng.choice(1000, c, replace=False)) for c in counts])
+    b = Bonds(np.concatenate([[0], np.cumsum(counts)]), partner, rng.random(len(partner)),
+              rng.integers(0, 2, len(partner)).astype(np.int8))
+    b.add_state("s")
+    b.state["s"][:] = rng.random(b.n_bonds)
+    b.slot[:] = rng.integers(0, 50, b.n_bonds)
+    pairs = {(int(r), int(q)) for r, q in zip(np.repeat(np.arange(n), counts), partner)}
+    new = []
+    while len(new) < 60:
+        r, q = int(rng.integers(0, n)), int(rng.integers(0, 1000))
+        if (r, q) not in pairs:
+            pairs.add((r, q))
+            new.append((r, q))
+    rows = np.array([r for r, _ in new])
+    new_partner = np.array([q for _, q in new])
+    weight = rng.random(len(new))
+    owner = np.concatenate([np.repeat(np.arange(n), counts), rows])
+    allp = np.concatenate([partner, new_partner])
+    ref = np.lexsort((allp, owner))
+    want = {"partner": allp[ref], "weight": np.concatenate([b.weight, weight])[ref],
+            "status": np.concatenate([b.status, np.ones(len(new), np.int8)])[ref],
+            "slot": np.concatenate([b.slot, np.full(len(new), -1, np.int32)])[ref],
+            "s": np.concatenate([b.state["s"], np.zeros(len(new))])[ref]}
+    b.merge(rows, new_partner, weight)
+    assert np.array_equal(b.offsets, np.concatenate([[0], np.cumsum(np.bincount(owner,
+                                                                               minlength=n))]))
+    for name in ("partner", "weight", "status", "slot"):
+        assert np.array_equal(getattr(b, name), want[name]), name
+    assert np.array_equal(b.state["s"], want["s"])
