@@ -231,7 +231,11 @@ def route_half_bonds(domain, arrays: dict[str, np.ndarray], owner_ids: np.ndarra
 def align_rows(bonds, row_ids: np.ndarray, target_ids: np.ndarray) -> None:
     """Permute ``bonds`` (rows named by ``row_ids``) into the order ``target_ids``."""
     sorter = np.argsort(row_ids, kind="stable")
-    pos = sorter[np.searchsorted(row_ids, target_ids, sorter=sorter)]
+    found = np.searchsorted(row_ids, target_ids, sorter=sorter)
+    # An id beyond every held one (or none held) is found at len(row_ids): the same error.
+    if len(target_ids) and (not len(row_ids) or found.max() >= len(row_ids)):
+        raise RuntimeError("bond rows and particle rows hold different ids")
+    pos = sorter[found]
     if not np.array_equal(row_ids[pos], target_ids):
         raise RuntimeError("bond rows and particle rows hold different ids")
     bonds.permute(pos)

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from hpcmpm.parallel import Domain
-from mpi_helpers import block_grid, cloud, deposit, particle_set, reference_grid, strided_share
+from hpcmpm.parallel.decomposition import BIG
+from mpi_helpers import (block_grid, cloud, deposit, particle_set, reference_grid, strided_share,
+                         with_fields_of_id)
 
 CASES = {2: dict(dx=1.0 / 16, n=1500), 3: dict(dx=1.0 / 8, n=800)}
 
@@ -105,3 +107,46 @@ def test_rank_without_particles_has_an_empty_block():
     grid["mass"][...] = 1.0
     domain.sum_ghosts_to_owners(grid, "mass")
     domain.fill_ghosts(grid, "mass")
+
+
+def test_a_region_outside_the_block_is_refused_not_wrapped():
+    """`region_slices` turns global node boxes into slices of a block; a box reaching below
+    the block's origin would give a negative start, which numpy reads from the far end of
+    the block (wrong nodes, no error). It raises instead, naming both boxes."""
+    from hpcmpm.parallel.exchange import region_slices
+
+    origin, shape = np.array([4, -2]), (6, 5)
+    assert region_slices(np.array([5, -2]), np.array([10, 3]), origin, shape) == (
+        slice(1, 6), slice(0, 5))
+    for lo, hi in (([3, 0], [6, 2]), ([5, 0], [11, 2]), ([5, -3], [6, 2])):
+        with pytest.raises(RuntimeError, match=r"grid block \[\[4, -2\], \[10, 3\]\) does not "
+                                               r"hold the exchanged nodes"):
+            region_slices(np.array(lo), np.array(hi), origin, shape)
+
+
+@pytest.mark.parallel(ranks=[2])
+def test_new_boxes_with_the_same_supports_get_a_new_exchange_plan():
+    """`grid_box` reuses its exchange plan while the support boxes stay the same; the plan
+    also depends on who owns which nodes, so adopting other boxes (a rebalance, a checkpoint's
+    decomposition) must drop it. Here the cut moves from cell 8 to cell 7 between two clusters
+    (cells <= 6 and >= 9) whose supports do not change: node 7 changes owner, and with the old
+    plan rank 0's sums on it would never reach rank 1."""
+    dim = 2
+    domain = Domain(dim, 1.0 / 16, np.zeros(dim), np.ones(dim))
+    rng = np.random.default_rng(9)
+    x = rng.uniform(0.05, 0.43, size=(400, dim))
+    x[200:, 0] += 0.52  # the second cluster: cells 9 .. 15
+    values = with_fields_of_id(np.arange(400, dtype=np.int64) * 3 + 1, x)
+    p = particle_set(dim, values, strided_share(values, domain))
+    for cut in (8, 7):
+        domain.set_boxes([[[-BIG, -BIG], [cut, BIG]], [[cut, -BIG], [BIG, BIG]]])
+        domain.migrate_all(p)
+        grid = block_grid(domain, p)
+        m, mom, _ = deposit(p["x"], p["id"], p["mass"], p["v"], domain.domain_lo, domain.dx,
+                            grid.origin, grid.shape)
+        grid["mass"][...] = m
+        domain.sum_ghosts_to_owners(grid, "mass")
+        ref_m, _, ref_mm, _ = reference_on_block(values, domain, grid)
+        owned = owned_mask(domain, grid)
+        np.testing.assert_allclose(grid["mass"][owned], ref_m[owned], rtol=1e-13, atol=0)
+        assert domain.dot(grid, "mass", "mass") == pytest.approx(ref_mm, rel=1e-12)

@@ -28,9 +28,11 @@ def test_every_field_arrives_by_id():
 def check_every_field_arrives_by_id(dim):
     domain = Domain(dim, 1.0 / 16, np.zeros(dim), np.ones(dim))
     values = cloud(dim, 1200, seed=11 + dim)
-    # Start with everything on rank 0, as a serial reader would leave it.
+    # Start with everything on rank 0, as a serial reader would leave it, and move it the
+    # way the start-up does, a bounded batch of rows per round (startup.MIGRATE_BATCH): 97
+    # rows make 1200 particles take several rounds.
     p = particle_set(dim, values, None if domain.rank == 0 else np.arange(0))
-    domain.decompose(p)
+    domain.decompose(p, batch=97)
     assert np.all(domain.owners(p["x"]) == domain.rank)
 
     old_owner = domain.owners(values["x"])
@@ -111,8 +113,12 @@ def test_step_migration_defers_far_jumps_to_the_agreement():
     far_owner = domain.owners(p["x"][:1])[0]
     far = far_owner != domain.rank and far_owner not in domain.neighbours
     assert domain.pending_far == int(far)
-    _, broken = domain.agree(p, 0.0, 0)
-    assert broken == 0 and domain.pending_far == 0
+    # The same reduction carries the step's largest speed, the broken-particle count and a
+    # stop request (a signal that reached rank 1 only): every rank gets the global answers.
+    domain.stop_requested = domain.rank == 1
+    speed, broken = domain.agree(p, 0.5 * domain.rank, domain.rank % 2)
+    assert speed == 0.5 * (domain.size - 1) and broken == domain.size // 2
+    assert domain.stop_agreed is True and domain.pending_far == 0
     assert np.all(domain.owners(p["x"]) == domain.rank)
     assert domain.global_count(p) == len(values["id"])
     # 4 strips: ranks 0 and 1 jump past rank 2's neighbour set to rank 3, rank 3 to rank 0.
@@ -120,3 +126,28 @@ def test_step_migration_defers_far_jumps_to_the_agreement():
     # Each delivered particle counts once where it left and once where it arrived (the
     # health check re-sorts the particles of a rank whose count is nonzero).
     assert domain.sum(domain.moved_in_agree) == 2 * domain.sum(int(far))
+
+
+@pytest.mark.parallel(ranks=[2])
+def test_ranks_that_declared_fields_in_another_order_agree_on_the_records():
+    """A particle travels as one packed record of all its fields (exchange.row_dtype); the
+    fields are laid out by name, not in declaration order, so a rank whose ParticleSet
+    declared its extra fields in another order reads the same bytes as the same fields."""
+    from hpcmpm.state import ParticleSet
+    from mpi_helpers import EXTRA_FIELDS
+
+    dim = 2
+    domain = Domain(dim, 1.0 / 16, np.zeros(dim), np.ones(dim))
+    values = cloud(dim, 300, seed=5)
+    extra = dict(EXTRA_FIELDS) if domain.rank == 0 else dict(reversed(EXTRA_FIELDS.items()))
+    p = ParticleSet(dim, extra)
+    if domain.rank == 0:
+        p.append(values)
+    orders = domain.allgather(p.field_names())
+    assert orders[0] != orders[1] and sorted(orders[0]) == sorted(orders[1])
+    domain.decompose(p)
+    everything = gather_by_id(domain, p)
+    counts = domain.allgather(p.n)
+    assert sum(counts) == 300 and counts[1] > 0  # rank 1 received records from rank 0
+    for name in p.field_names():
+        np.testing.assert_array_equal(everything[name], values[name], err_msg=name)

@@ -237,3 +237,80 @@ def test_checksum_covers_every_chunk_and_combines_across_a_split():
     # The split is not an identity by accident: the second slice counted from row 0 is
     # another sum (the element index enters every term).
     assert cks.combine([parts[0], cks.partial_checksum(a[split:], 0)]) != whole
+
+
+def test_a_dataset_with_the_wrong_row_count_is_reported(tmp_path):
+    """A /particles dataset shorter than n_particles (a damaged or hand-edited file) is named
+    as such, with its row count, instead of surfacing as a checksum mismatch or a short
+    share. The dataset is rewritten one row short with its original checksum attribute."""
+    write(tmp_path, 2, step=100)
+    path, written = write(tmp_path, 2, step=200)
+    n = sum(len(w["id"]) for w in written)
+    with h5py.File(path, "r+") as h5:
+        old = h5["particles/mass"]
+        data, checksum = old[:-1], old.attrs["checksum"]
+        del h5["particles/mass"]
+        h5["particles/mass"] = data
+        h5["particles/mass"].attrs["checksum"] = checksum
+    with pytest.raises(CheckpointError) as err:
+        read(path, 2)
+    assert str(err.value) == (f"ckpt_000000200.h5: /particles/mass has {n - 1} rows, expected "
+                              f"{n}: file is corrupt; the previous checkpoint "
+                              "ckpt_000000100.h5 may still be usable")
+
+
+def test_root_attributes_describe_the_checkpoint(tmp_path):
+    """Provenance a user reads with h5dump or `hpcmpm info`, not used by the restart itself
+    (which reads ``meta``): a dropped or constant attribute would go unnoticed by every
+    round trip above."""
+    path, written = write(tmp_path, 3, step=300, dim=2)
+    with h5py.File(path, "r") as h5:
+        attrs = dict(h5.attrs)
+    assert attrs["kind"] == "checkpoint" and attrs["format"] == 1
+    assert attrs["step"] == 300 and attrs["time"] == 300 * 1e-3 and attrs["dim"] == 2
+    assert attrs["n_particles"] == sum(len(w["id"]) for w in written)
+    assert attrs["n_ranks"] == 3 and attrs["io_mode"] == "serial"
+    assert attrs["scene"] == 'name = "ckpt"\n' and attrs["hpcmpm_version"] == "0.1.0"
+    assert attrs["restart_chain"] == '["a.toml"]'
+    assert attrs["checksum_algorithm"] == "splitmix64-sum"
+
+
+def test_a_frame_of_a_checkpointed_step_names_that_checkpoint(tmp_path):
+    """The last frame and the last checkpoint of a run share their step: restarting from the
+    frame names the checkpoint of that very step (at or before it), not the one before."""
+    for step in (100, 200, 300):
+        write(tmp_path, 1, step=step, keep=5)
+    frame = tmp_path / "frame_000004.h5"
+    with h5py.File(frame, "w") as h5:
+        h5.attrs["kind"] = "frame"
+        h5.attrs["step"] = 200
+    with pytest.raises(CheckpointError) as err:
+        read(frame, 1)
+    assert str(err.value).endswith(
+        f"the newest checkpoint at or before its step 200 is {tmp_path / checkpoint_name(200)}")
+
+
+def test_checkpoint_reaches_the_disk_before_its_name_and_the_folder_after(tmp_path,
+                                                                            monkeypatch):
+    """The module's crash guarantee (at least one complete checkpoint at any moment) needs
+    the data fsynced before the rename and the folder fsynced after it; neither shows in a
+    test that does not crash the machine, so the calls are recorded: fsync of the .tmp
+    file, rename to the final name, fsync of the folder, in that order."""
+    import os
+
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+        real_fsync(fd)
+
+    def replace(src, dst):
+        events.append(("replace", str(src), str(dst)))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    path, _ = write(tmp_path, 1, step=100)
+    tmp = str(path) + ".tmp"
+    assert events == [("fsync", tmp), ("replace", tmp, str(path)), ("fsync", str(tmp_path))]

@@ -118,3 +118,55 @@ def test_long_scene_text_fits_in_an_attribute(tmp_path):
     path = run_ranks(1, body)[0]
     with h5py.File(path) as h5:
         assert h5.attrs["scene"] == text
+
+
+def test_every_frame_carries_its_own_time_step_and_provenance(tmp_path):
+    """The round trip above writes one frame at time 0, step 0, index 0: an attribute taken
+    from the wrong source (the frame index for the step) would pass there. Here frame 2 is
+    step 20 at t = 1, and an extra attribute that reuses a core name does not replace it.
+    Numpy scalars among the extras are stored as numbers, not as JSON text."""
+    values = global_particles(2, 30)
+
+    def body(comm):
+        p = particle_set(2, share(values, comm.rank, comm.size, None))
+        w = FrameWriter(tmp_path, comm, SCENE, 2, [], {"restart_chain": ["a.toml", "b.h5"],
+                                                       "scene_path": "inputs/x.toml"},
+                        mode="serial")
+        extra = {"time": -1.0, "step": -1, "energy": 2.5, "count": np.int64(7),
+                 "ratio": np.float32(0.25)}
+        return [str(w.write(p, t, s, extra))
+                for t, s in ((0.0, 0), (0.5, 10), (1.0, 20))]
+
+    paths = run_ranks(2, body)[0]
+    for index, (path, t, s) in enumerate(zip(paths, (0.0, 0.5, 1.0), (0, 10, 20))):
+        _, attrs = read_frame(path)
+        assert (attrs["time"], attrs["step"], attrs["frame_index"]) == (t, s, index)
+        assert attrs["energy"] == 2.5 and attrs["scene_path"] == "inputs/x.toml"
+        assert attrs["count"] == 7 and attrs["ratio"] == 0.25
+        assert attrs["restart_chain"] == '["a.toml", "b.h5"]' and attrs["n_ranks"] == 2
+
+
+def test_io_mode_none_reads_the_environment(monkeypatch):
+    """``mode=None`` (the runner's default) takes $HPCMPM_IO_MODE (docs/output.md); an explicit
+    mode wins over it, and a wrong value is refused whichever way it came."""
+    from types import SimpleNamespace
+
+    from hpcmpm.errors import HpcmpmError
+    from hpcmpm.io.shared import mpio_available, resolve_mode
+
+    two_ranks = SimpleNamespace(size=2, rank=0)
+    monkeypatch.setenv("HPCMPM_IO_MODE", "serial")
+    assert resolve_mode(None, two_ranks) == "serial"
+    monkeypatch.setenv("HPCMPM_IO_MODE", "parallel")
+    with pytest.raises(HpcmpmError, match="I/O mode 'parallel': must be one of auto, serial, "
+                                          "mpio"):
+        resolve_mode(None, two_ranks)
+    assert resolve_mode("serial", two_ranks) == "serial"
+    monkeypatch.setenv("HPCMPM_IO_MODE", "mpio")
+    if mpio_available():
+        assert resolve_mode(None, two_ranks) == "mpio"
+    else:
+        with pytest.raises(HpcmpmError, match="needs h5py built with MPI"):
+            resolve_mode(None, two_ranks)
+    monkeypatch.delenv("HPCMPM_IO_MODE")
+    assert resolve_mode(None, two_ranks) == ("mpio" if mpio_available() else "serial")
