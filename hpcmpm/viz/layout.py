@@ -61,8 +61,14 @@ def colour_scale(choice: FieldChoice, lo: float, hi: float,
         # 0.1414213562 +- 1e-15 was drawn in the full colour map, its bar labelled
         # "1e-15 + 1.414213562e-1"): a small band around the value, so the bar still reads.
         mid = 0.5 * (lo + hi)
-        pad = 0.05 * abs(mid) or 0.5
-        lo, hi = mid - pad, mid + pad
+        if mid == 0.0:
+            # Zero everywhere (damage before any bond breaks, a velocity component at rest):
+            # [0, 1], the colour other frames give 0, and no negative ticks on the bar of a
+            # quantity that cannot be negative.
+            lo, hi = 0.0, 1.0
+        else:
+            pad = 0.05 * abs(mid)
+            lo, hi = mid - pad, mid + pad
     cmap = colormaps["viridis"].with_extremes(bad="0.6")
     return ColourScale(cmap, Normalize(lo, hi), choice.label)
 

@@ -460,6 +460,9 @@ def test_colour_scales_of_materials_uniform_fields_and_nan():
     flat = colour_scale(FieldChoice("speed"), speed.min(), speed.max())
     assert np.abs(flat.norm(speed) - 0.5).max() < 1e-12
     assert flat.norm.vmax - flat.norm.vmin == pytest.approx(0.1 * math.sqrt(0.02))
+    # Zero everywhere (no bond broken yet): [0, 1], no negative damage on the bar.
+    zero = colour_scale(FieldChoice("damage"), 0.0, 0.0)
+    assert (zero.norm.vmin, zero.norm.vmax) == (0.0, 1.0)
     # A small physical spread keeps the full map: J within 1e-9 of 1 (a nearly
     # incompressible fluid) is 1e-9 relative, above round-off.
     J = 1.0 + np.array([-1e-9, 1e-9])
