@@ -38,12 +38,10 @@ def _validate(args) -> int:
     from .startup import validate_report
 
     scenes = args.scene
-    if len(scenes) == 1:
-        print(validate_report(load_scene(scenes[0], args.set or [])))
-        return 0
     code = 0
     for path in scenes:
-        print(f"== {path}", flush=True)
+        if len(scenes) > 1:
+            print(f"== {path}", flush=True)
         try:
             print(validate_report(load_scene(path, args.set or [])), flush=True)
         except HpcmpmError as exc:

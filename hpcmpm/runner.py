@@ -128,6 +128,8 @@ class Runner:
 
     # -- loop ------------------------------------------------------------------------------
     def run(self) -> dict:
+        from .io.checkpoint import reached_end
+
         sim, opts = self.sim, self.options
         n_global = self.domain.sum(sim.particles.n)
         progress = Progress(opts.end_time, n_global, disabled=opts.quiet or self.domain.rank)
@@ -137,7 +139,7 @@ class Runner:
             self.write_frame()
             self.first_frame_written = True
         with nullcontext(self.signal_flag) if self.signal_flag else SignalFlag() as flag:
-            while sim.time < opts.end_time * (1 - 1e-12):
+            while not reached_end(sim.time, opts.end_time):
                 # Agreed with the time step's health check (one allreduce for both).
                 self.domain.stop_requested = flag.raised is not None
                 dt = self.choose_dt()
@@ -465,7 +467,9 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
     check_launch(comm)
     ckpt = checkpoint_to_restart(Path(args.checkpoint), comm)
     sim, meta, end_time = restore_simulation(str(ckpt), comm, args.end_time)
-    if sim.time >= end_time * (1 - 1e-12):
+    from .io.checkpoint import reached_end
+
+    if reached_end(sim.time, end_time):
         return nothing_to_run(comm, ckpt, sim.time, end_time, args.end_time is not None)
     sim.domain.install_abort_hook()
     out_dir = Path(args.out) if args.out else ckpt.parent

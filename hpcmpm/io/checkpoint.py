@@ -50,6 +50,12 @@ def list_checkpoints(path_dir) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
+def reached_end(time: float, end_time: float) -> bool:
+    """Whether a run (or its checkpoint) at ``time`` has reached ``end_time``: the time is a
+    sum of steps, so a run lands within round-off of its end."""
+    return time >= end_time * (1 - 1e-12)
+
+
 def latest_checkpoint(path_dir) -> Path | None:
     """The checkpoint with the highest step in ``path_dir``, or None. A file with the final name
     is complete by construction (written as ``*.tmp`` and renamed), so none is opened here; a

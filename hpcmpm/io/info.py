@@ -118,7 +118,7 @@ def describe_run(folder) -> tuple[list[str], int]:
     whether the run reached it, and the command that continues the run. Reads two frames'
     attributes and one checkpoint in full; raises `OutputFileError` for a folder that holds
     neither a frame nor a checkpoint."""
-    from .checkpoint import list_checkpoints
+    from .checkpoint import list_checkpoints, reached_end
 
     folder = Path(folder)
     frames = sorted((int(m.group(1)), p) for p in folder.iterdir()
@@ -164,7 +164,7 @@ def describe_run(folder) -> tuple[list[str], int]:
         return lines, CheckpointError.exit_code
     now, end = float(meta.get("time", source.get("time", 0.0))), float(meta["end_time"])
     lines.append(f"end time:    {end:.9g}")
-    if now >= end * (1 - 1e-12):
+    if reached_end(now, end):
         lines += [f"state:       finished (t = {now:.9g})",
                   f"continue:    hpcmpm restart {folder} --end-time T (T > {now:.9g})"]
     else:

@@ -43,9 +43,9 @@ def impose_prescribed_velocity(sim, rows, x: np.ndarray, v: np.ndarray) -> None:
     tags = sim.particles["prescribed"][rows]
     dim = sim.dim
     for clamp in sim.prescribed:
-        rows = np.flatnonzero(tags == clamp.index)
-        if len(rows) == 0:
+        mine = np.flatnonzero(tags == clamp.index)
+        if len(mine) == 0:
             continue
-        r = np.zeros((len(rows), 3))
-        r[:, :dim] = x[rows] - clamp.centre(sim.time)[:dim]
-        v[rows] = (clamp.velocity + np.cross(clamp.omega, r))[:, :dim]
+        r = np.zeros((len(mine), 3))
+        r[:, :dim] = x[mine] - clamp.centre(sim.time)[:dim]
+        v[mine] = (clamp.velocity + np.cross(clamp.omega, r))[:, :dim]

@@ -446,10 +446,9 @@ class ViscoelasticLPS:
         places (the kernels neither read nor write them then)."""
         ghost, shift = ghost_arrays(pts, self.ghost_states)
         if self.memory == "none" and len(self.clamp_faces):
-            kept = len(GHOST_QUANTITIES) - 1
-            ghost = tuple(a for f in range(len(self.clamp_faces))
-                          for a in (ghost[kept * f], _NO_FORCES, _NO_FORCES,
-                                    ghost[kept * f + 1], ghost[kept * f + 2]))
+            store = pts.ghosts.state
+            ghost = tuple(store.get(name, _NO_FORCES)
+                          for name in ghost_state_names(len(self.clamp_faces)))
         return ghost, shift
 
     def setup(self, pts) -> None:
