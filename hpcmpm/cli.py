@@ -120,6 +120,7 @@ EPILOG = ("Exit codes: 0 done, 2 invalid scene or arguments, 3 numerical instabi
           "run, 6 not a readable frame or checkpoint (info), 75 checkpoint written on "
           "SIGTERM/SIGUSR1. Scene format: docs/scene-format.md.")
 CHECKPOINT_EVERY_HELP = "also write a checkpoint every N steps (default: output.checkpoint_every)"
+DEBUG_CHECKS_HELP = "check the global particle count every step"
 CHECKPOINT_WALL_HELP = "also write a checkpoint every HH:MM:SS (or seconds) of wall time"
 QUIET_HELP = "no progress bar (warnings and errors are still printed)"
 
@@ -142,8 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--force", action="store_true", help="replace another run's output")
     run.add_argument("--checkpoint-every", type=int, metavar="N", help=CHECKPOINT_EVERY_HELP)
     run.add_argument("--checkpoint-wall", metavar="HH:MM:SS", help=CHECKPOINT_WALL_HELP)
-    run.add_argument("--debug-checks", action="store_true",
-                     help="check the global particle count every step")
+    run.add_argument("--debug-checks", action="store_true", help=DEBUG_CHECKS_HELP)
     run.add_argument("--dry-run", action="store_true",
                      help="sample and decompose, report counts and memory per rank, exit")
     run.set_defaults(handler=_run)
@@ -161,6 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     restart.add_argument("--quiet", action="store_true", help=QUIET_HELP)
     restart.add_argument("--checkpoint-every", type=int, metavar="N", help=CHECKPOINT_EVERY_HELP)
     restart.add_argument("--checkpoint-wall", metavar="HH:MM:SS", help=CHECKPOINT_WALL_HELP)
+    restart.add_argument("--debug-checks", action="store_true", help=DEBUG_CHECKS_HELP)
     restart.set_defaults(handler=_restart)
 
     validate = verbs.add_parser("validate", help="check a scene file",
@@ -272,7 +273,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = _attach_dash_values(list(sys.argv[1:] if argv is None else argv))
     args, unknown = parser.parse_known_args(argv)
-    if unknown:
+    if unknown and args.verb == "jobscript" and unknown[0] == "--":
+        # `jobscript ... SCENE -o x.sh -- --end-time 1`: argparse gave SCENE an empty `extra`
+        # before the options that follow it; what comes after "--" is that `extra`.
+        args.extra = list(args.extra) + unknown[1:]
+    elif unknown:
         # argparse.REMAINDER does not take a leading option (`hpcmpm bench --help`), so the
         # bench verb collects those itself; every other verb rejects them as usual.
         if args.verb != "bench":

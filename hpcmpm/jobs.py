@@ -7,6 +7,7 @@ checkpoint when the job is requeued or resubmitted.
 
 from __future__ import annotations
 
+import re
 import shlex
 import sys
 from pathlib import Path
@@ -20,6 +21,12 @@ SCHEDULERS = ("slurm", "pbs")
 SIGNAL_MARGIN = 300
 # srun's MPI plugin: PMI-2 gives MPICH (the PyPI wheel too) its ranks; see jobs/slurm.sh.in.
 DEFAULT_SRUN_MPI = "pmi2"
+# `hpcmpm run` options that a requeued job's `hpcmpm restart` must be given again (the rest of
+# the run's arguments are in the checkpoint: the scene with its --set values, the end time).
+RESTART_OPTIONS = ("--checkpoint-every", "--checkpoint-wall")
+RESTART_FLAGS = ("--debug-checks",)
+# The job's log in its output folder (the scheduler opens it before the script runs).
+LOG_NAMES = {"slurm": "slurm-%j.out", "pbs": "pbs.out"}
 
 
 class JobScriptError(HpcmpmError):
@@ -65,16 +72,62 @@ def render(scheduler: str, scene: str, nodes: int, ranks_per_node: int, walltime
     seconds = parse_walltime(walltime)
     margin = min(SIGNAL_MARGIN, max(seconds // 10, 10))
     out_dir = default_out_dir(scene, out_dir)
-    extra = " " + " ".join(shlex.quote(a) for a in extra_args) if extra_args else ""
+    log = directive_path(scheduler, out_dir)
+
+    def words(args):
+        return "".join(" " + shlex.quote(a) for a in args)
+
     mapping = {
-        "job_name": Path(scene).stem, "nodes": nodes, "ranks_per_node": ranks_per_node,
+        "job_name": job_name(scene), "nodes": nodes, "ranks_per_node": ranks_per_node,
         "walltime": walltime, "walltime_seconds": seconds, "signal_margin": margin,
-        "exit_code": EXIT_CHECKPOINTED_ON_SIGNAL, "scene": scene, "out_dir": out_dir,
+        "exit_code": EXIT_CHECKPOINTED_ON_SIGNAL, "scene": shlex.quote(scene),
+        "out_dir": shlex.quote(out_dir), "log": log,
         "activate": activate or f"source {shlex.quote(str(Path(sys.prefix) / 'bin' / 'activate'))}",
-        "extra_args": extra, "end_time_arg": "", "script_path": script_path,
+        "extra_args": words(extra_args or []),
+        "restart_args": words(restart_arguments(extra_args or [])),
+        "script_path": shlex.quote(script_path),
         "srun_mpi": "" if srun_mpi == "default" else f" --mpi={srun_mpi}",
     }
     return Template(template_path(scheduler).read_text(encoding="utf-8")).safe_substitute(mapping)
+
+
+def job_name(scene: str) -> str:
+    """The scene's file stem as a job name the schedulers take whole: runs of characters other
+    than letters, digits, ``_``, ``.`` and ``-`` (a space would end a directive's value) become
+    ``_``, and a name not starting with a letter gets ``j`` in front (PBS requires one)."""
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(scene).stem).strip("_") or "hpcmpm"
+    return name if name[0].isalpha() else "j" + name
+
+
+def directive_path(scheduler: str, out_dir: str) -> str:
+    """The job log's path in ``out_dir`` as a directive's value. SLURM reads a double-quoted
+    directive value whole (a space inside it included); PBS directives take no quoting that
+    every PBS honours, so a folder with a space or a quote is refused there, as is a double
+    quote, a backslash or a new line for SLURM."""
+    if scheduler == "pbs" and re.search(r"[\s\"'\\]", out_dir):
+        raise JobScriptError(f"--out: {out_dir!r}: a PBS job's log path (#PBS -o) cannot hold a "
+                             f"space or a quote; pass an --out folder without one")
+    if re.search(r"[\"\\\n]", out_dir):
+        raise JobScriptError(f"--out: {out_dir!r}: a job's log path cannot hold a double quote, "
+                             f"a backslash or a new line; pass another --out folder")
+    path = f"{out_dir}/{LOG_NAMES[scheduler]}"
+    return f'"{path}"' if scheduler == "slurm" else path
+
+
+def restart_arguments(extra_args: list[str]) -> list[str]:
+    """The extra `hpcmpm run` arguments that the requeued job's `hpcmpm restart` needs too
+    (`RESTART_OPTIONS` with their values, `RESTART_FLAGS`), in their order."""
+    kept, i = [], 0
+    while i < len(extra_args):
+        a = extra_args[i]
+        if a in RESTART_OPTIONS and i + 1 < len(extra_args):
+            kept += extra_args[i:i + 2]
+            i += 2
+            continue
+        if a in RESTART_FLAGS or a.split("=", 1)[0] in RESTART_OPTIONS:
+            kept.append(a)
+        i += 1
+    return kept
 
 
 def default_out_dir(scene: str, out_dir: str | None) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+import shlex
 import signal
 import time
 from contextlib import nullcontext
@@ -150,7 +151,7 @@ class Runner:
                     raise CheckpointedOnSignal(
                         f"{signal.Signals(raised[0]).name} received: checkpoint written at "
                         f"step {sim.step_index}, t={sim.time:.6g} in {opts.out_dir}; continue "
-                        f"with `hpcmpm restart {self.latest_checkpoint_path}`")
+                        f"with `hpcmpm restart {shlex.quote(str(self.latest_checkpoint_path))}`")
                 target = self.next_frame_time(sim.time)
                 clipped = sim.time + dt >= target * (1 - 1e-12)
                 if clipped and abs(target - sim.time - dt) > 1e-9 * dt:
@@ -302,8 +303,15 @@ def make_output_dir(comm: Communicator, out_dir: Path) -> None:
         raise SceneError(problem)
 
 
+# What `hpcmpm render` and `hpcmpm plot` write into a run folder by default: pictures of the
+# run's frames, which `--force` removes with the frames they show.
+DERIVED_OUTPUT = ("render/render_[0-9]*.png", "render/render.mp4", "render/render.gif",
+                  "render/render.webp", "diagnostics.csv", "diagnostics.png")
+
+
 def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
-    """A run never overwrites another run's output without ``--force``."""
+    """A run never overwrites another run's output without ``--force``; with it, that run's
+    frames, checkpoints, XDMF and the pictures made of them (`DERIVED_OUTPUT`) go."""
     problem = None
     if comm.rank == 0:
         existing = [p for p in out_dir.glob("*") if p.suffix in (".h5", ".xdmf", ".tmp")] \
@@ -312,7 +320,8 @@ def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
             problem = (f"{out_dir} already holds output of another run ({len(existing)} files); "
                        f"choose another --out or pass --force to replace it")
         elif existing:
-            for p in existing:
+            pictures = [p for pattern in DERIVED_OUTPUT for p in out_dir.glob(pattern)]
+            for p in existing + pictures:
                 p.unlink()
     problem = comm.bcast(problem)
     if problem:
@@ -350,7 +359,8 @@ def report_done(comm: Communicator, out_dir: Path, diag: dict, wall: float, step
     log.info("mass %.6g, kinetic %.6g, elastic %.6g", diag["mass"], diag["kinetic_energy"],
              diag["elastic_energy"])
     print(f"output: {out_dir.resolve()}\n"
-          f"open in ParaView: paraview {xdmf.resolve()}  (frames: {out_dir}/frame_*.h5)")
+          f"open in ParaView: paraview {shlex.quote(str(xdmf.resolve()))}  (frames: "
+          f"{out_dir}/frame_*.h5)")
 
 
 def simulate(scene, end_time: float | None = None, observer=None, comm=None) -> Simulation:
@@ -485,6 +495,7 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
                          checkpoint_every=getattr(args, "checkpoint_every", None)
                          or sim.scene.output.checkpoint_every,
                          checkpoint_wall=parse_wall_time(getattr(args, "checkpoint_wall", None)),
+                         debug_checks=bool(getattr(args, "debug_checks", False)),
                          restart_chain=chain)
     runner_frames = int(meta["frame_index"])
     return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True,

@@ -329,7 +329,10 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str,
                 node = node[index]
                 where += f"[{index}]"
             elif isinstance(node, dict):
-                node = node.setdefault(part, {})
+                # A section written as [[...]] that the file lacks is an empty array: its
+                # entry is then "no entry 0 (colliders has 0)", not a table made up here.
+                empty = [] if depth == 0 and part in ARRAY_SECTIONS else {}
+                node = node.setdefault(part, empty)
                 where += f".{part}" if where else part
             else:
                 problem = "no such key"
@@ -352,6 +355,8 @@ def apply_overrides(raw: dict, overrides: Sequence[str], file: str,
     return problems
 
 
+# The top-level sections written as arrays of tables ([[bodies]]).
+ARRAY_SECTIONS = ("materials", "bodies", "colliders", "prescribed")
 # The name an array entry gets when it has none (the sections' own defaults, e.g. "body0").
 DEFAULT_ENTRY_NAMES = {"bodies": "body", "colliders": "collider", "prescribed": "prescribed"}
 
@@ -367,6 +372,8 @@ def _entry_index(entries: list, part: str, section: str) -> tuple[int, str | Non
              if isinstance(e, dict) else None for i, e in enumerate(entries)]
     if part in names:
         return names.index(part), None
+    if not entries:
+        return 0, f"no entry named {part!r} ({section} has 0)"
     known = ", ".join(str(n) for n in names if n is not None)
     return 0, f"no entry named {part!r} in {section} (names: {known}; or give an index)"
 
@@ -645,7 +652,12 @@ COMMON_BODY_KEYS = ("name", "material", "shape", "velocity", "angular_velocity",
 
 def _bodies(c: Checker, raw: dict, dim, materials, lo, hi, base_dir: Path) -> tuple:
     out = []
-    names = {m.name for m in materials}
+    # The names the file defines, also of materials with a problem of their own (a body that
+    # names a valid but badly parametrised material is not "unknown"; one naming no material
+    # is reported with the rest, not after they are fixed).
+    names = {m.name for m in materials} | {
+        m["name"] for m in (raw.get("materials") if isinstance(raw.get("materials"), list)
+                            else ()) if isinstance(m, dict) and isinstance(m.get("name"), str)}
     entries = c.tables(raw, "bodies", "")
     if not entries:
         c.problem("bodies", "missing: at least one [[bodies]] table is required")

@@ -149,6 +149,16 @@ def grid_bytes(scene, count: int, ranks: int) -> float:
     return 8.0 * grid_values_per_node(scene) * max(2.0 * cells, box)
 
 
+def shared_body_counts(scene, count: int, body_counts=None):
+    """``body_counts``, or ``count`` shared among the bodies as their shapes estimate."""
+    if body_counts is not None:
+        return body_counts
+    from .geometry import estimate_body_counts
+
+    guess, _ = estimate_body_counts(scene)
+    return np.asarray(guess) * (count / max(sum(guess), 1.0))
+
+
 def estimate_memory(scene, count: int, ranks: int, exact: bool,
                     body_counts=None) -> MemoryEstimate:
     """Bytes per rank for ``count`` particles on ``ranks`` ranks. The busiest rank may hold
@@ -156,16 +166,11 @@ def estimate_memory(scene, count: int, ranks: int, exact: bool,
     (`grid_bytes`) is included, and so are the bonds of peridynamic bodies (`side_bytes`;
     ``body_counts``: the particles of each body, by default ``count`` shared as the bodies'
     shapes estimate)."""
-    from .geometry import estimate_body_counts
-
     per_particle = particle_bytes(scene)
     factor = scene.parallel.rebalance_threshold if ranks > 1 else 1.0
     share = count / ranks * factor
     grid = grid_bytes(scene, count, ranks)
-    if body_counts is None:
-        guess, _ = estimate_body_counts(scene)
-        body_counts = np.asarray(guess) * (count / max(sum(guess), 1.0))
-    side, note, key = side_bytes(scene, body_counts)
+    side, note, key = side_bytes(scene, shared_body_counts(scene, count, body_counts))
     side_share = int(side / ranks * factor)
     per_rank = int(share * per_particle + grid + side_share + BASE_BYTES)
     return MemoryEstimate(int(count), ranks, exact, per_particle, per_rank, side_share, note,
@@ -196,17 +201,40 @@ def available_memory() -> int | None:
     return min(found) if found else None
 
 
+def ranks_needed(scene, estimate: MemoryEstimate, per_rank_here: float,
+                 body_counts=None) -> int | None:
+    """The fewest ranks whose busiest one (`estimate_memory` on that many ranks) fits in
+    ``per_rank_here`` bytes, or None when no rank count below 2^40 does. Searched, not scaled
+    from this estimate: on more ranks the busiest one holds up to the rebalance factor above
+    the mean (which a 1-rank estimate leaves out) and the grid block shrinks more slowly than
+    the share (`grid_bytes`); both are non-increasing beyond 2 ranks, so a bisection finds
+    the least count."""
+    body_counts = shared_body_counts(scene, estimate.particles, body_counts)
+
+    def fits(ranks: int) -> bool:
+        return estimate_memory(scene, estimate.particles, ranks, estimate.exact,
+                               body_counts).per_rank <= per_rank_here
+
+    lo, hi = estimate.ranks, max(2 * estimate.ranks, 2)   # lo does not fit
+    while not fits(hi):
+        lo, hi = hi, 2 * hi
+        if hi > 2 ** 40:
+            return None
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return hi
+
+
 def memory_problem(scene, estimate: MemoryEstimate, ranks_on_node: int,
-                   available: int | None) -> str | None:
+                   available: int | None, body_counts=None) -> str | None:
     """The one-line refusal when ``ranks_on_node`` ranks of this estimate do not fit in
-    ``available`` bytes, else None."""
+    ``available`` bytes, else None; it names the rank count that would fit (`ranks_needed`,
+    as many ranks per node; ``body_counts`` as for `estimate_memory`)."""
     if available is None or estimate.per_rank * ranks_on_node <= available:
         return None
     per_rank_here = available / ranks_on_node
-    # Ranks needed so that each one's share fits in what one rank may have here.
-    share_bytes = estimate.per_rank - BASE_BYTES
-    room = per_rank_here - BASE_BYTES
-    needed = int(np.ceil(estimate.ranks * share_bytes / room)) if room > 0 else None
+    needed = ranks_needed(scene, estimate, per_rank_here, body_counts)
     key, lower = "simulation.particles_per_cell", \
         "lower simulation.particles_per_cell or refine less"
     if 2 * estimate.side_per_rank > estimate.per_rank - BASE_BYTES:   # mostly bonds
@@ -228,7 +256,8 @@ def check_memory(scene, domain, count: int, exact: bool, body_counts=None) -> Me
     worst = domain.max(ratio)
     if worst > 1.0:
         # The node with the least room reports; everybody raises its line.
-        line = memory_problem(scene, estimate, local, available) if ratio == worst else None
+        line = memory_problem(scene, estimate, local, available, body_counts) \
+            if ratio == worst else None
         lines = [x for x in domain.allgather(line) if x]
         raise SceneError(lines[0])
     return estimate
@@ -333,7 +362,7 @@ def validate_report(scene) -> str:
     memory = f"{scene.path}: memory estimate: {estimate.describe()}"
     if available is None:
         return f"{head}\n{memory}"
-    problem = memory_problem(scene, estimate, 1, available)
+    problem = memory_problem(scene, estimate, 1, available, body_counts)
     if problem:
         return f"{head}\n{problem}"
     return f"{head}\n{memory}; {format_bytes(available)} available here"

@@ -5,6 +5,7 @@ its end time) and the command that continues it."""
 from __future__ import annotations
 
 import json
+import shlex
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ from typing import Any
 import h5py
 
 from ..errors import CheckpointError, HpcmpmError
+from .checkpoint import CKPT_PATTERN
 from .xdmf import FRAME_PATTERN
 
 
@@ -47,6 +49,13 @@ def provenance(chain: list[str]) -> str:
     return f"run of {first}, restarted from {', then '.join(restarts)}"
 
 
+def scene_path(attrs: dict[str, Any], meta: dict[str, Any], chain: list[str]) -> str | None:
+    """Where a file's scene came from: a checkpoint's meta, a frame's attribute, or (frames
+    written before they carried it) the scene file that starts the provenance chain."""
+    return meta.get("scene_path") or attrs.get("scene_path") or \
+        next((c for c in chain[:1] if c.endswith(".toml")), None)
+
+
 def _text(value: Any) -> Any:
     return value.decode() if isinstance(value, bytes) else value
 
@@ -59,6 +68,12 @@ def describe(path) -> list[str]:
     try:
         h5 = h5py.File(path, "r")
     except OSError as exc:
+        if CKPT_PATTERN.match(path.name):
+            # A checkpoint that cannot be opened (truncated, overwritten) is a checkpoint that
+            # fails verification, as `info RUN_FOLDER` and `restart` report it: exit 4.
+            return [f"file:        {path}",
+                    "kind:        checkpoint (by its name: the file cannot be opened)",
+                    f"checksum:    {verify_checkpoint(path)}"]
         raise OutputFileError(f"{path}: not a readable HDF5 file "
                               f"({' '.join(str(exc).split())})") from None
     with h5:
@@ -68,14 +83,10 @@ def describe(path) -> list[str]:
             raise OutputFileError(f"{path}: not an hpcmpm frame or checkpoint")
         meta = json.loads(attrs.get("meta", "{}")) if kind == "checkpoint" else {}
         chain = json.loads(attrs.get("restart_chain", "[]") or "[]")
-        # Where the scene came from: a checkpoint's meta, a frame's attribute, or (frames
-        # written before they carried it) the scene file that starts the provenance chain.
-        scene_path = meta.get("scene_path") or attrs.get("scene_path") or \
-            next((c for c in chain[:1] if c.endswith(".toml")), None)
         lines = [
             f"file:        {path}",
             f"kind:        {kind}",
-            f"scene:       {scene_name(attrs.get('scene', ''), scene_path)}",
+            f"scene:       {scene_name(attrs.get('scene', ''), scene_path(attrs, meta, chain))}",
             f"time:        {float(attrs.get('time', 0.0)):.9g}",
             f"step:        {int(attrs.get('step', 0))}",
             f"dim:         {int(attrs.get('dim', 0))}",
@@ -129,11 +140,12 @@ def describe_run(folder) -> tuple[list[str], int]:
                               f"(ckpt_SSSSSSSSS.h5) here: not a run folder")
     newest = checkpoints[-1][1] if checkpoints else None
     last_frame = _attrs(frames[-1][1]) if frames else {}
-    source = _attrs(newest) if newest else last_frame
+    # The newest checkpoint's attributes, or the last frame's where it cannot be read.
+    source = (_attrs(newest) if newest else {}) or last_frame
     meta = json.loads(source.get("meta", "{}") or "{}")
-    lines = [f"run:         {folder}",
-             f"scene:       {scene_name(source.get('scene', ''), meta.get('scene_path'))}"]
     chain = json.loads(source.get("restart_chain", "[]") or "[]")
+    lines = [f"run:         {folder}",
+             f"scene:       {scene_name(source.get('scene', ''), scene_path(source, meta, chain))}"]
     if chain:
         lines.append(f"provenance:  {provenance(chain)}")
     if frames:
@@ -166,10 +178,11 @@ def describe_run(folder) -> tuple[list[str], int]:
     lines.append(f"end time:    {end:.9g}")
     if reached_end(now, end):
         lines += [f"state:       finished (t = {now:.9g})",
-                  f"continue:    hpcmpm restart {folder} --end-time T (T > {now:.9g})"]
+                  f"continue:    hpcmpm restart {shlex.quote(str(folder))} --end-time T "
+                  f"(T > {now:.9g})"]
     else:
         lines += [f"state:       stopped at t = {now:.9g}, before its end time",
-                  f"continue:    hpcmpm restart {folder}"]
+                  f"continue:    hpcmpm restart {shlex.quote(str(folder))}"]
     return lines, 0
 
 

@@ -9,6 +9,7 @@ mean the same in every picture.
 from __future__ import annotations
 
 import logging
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -50,7 +51,7 @@ def render_run(run_dir, field: str | None = None, frames: str | None = None, out
     out = Path(out) if out is not None else run_dir / "render"
     choice = parse_field(field)
     plan = _on_root(comm, lambda: _plan(run_dir, choice, frames))
-    picked, needed = plan
+    picked, needed, indices = plan
     mine = picked[comm.rank::comm.size]
 
     def colour_range():
@@ -65,6 +66,7 @@ def render_run(run_dir, field: str | None = None, frames: str | None = None, out
     lo, hi = comm.min(lo), comm.max(hi)
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
+        remove_stale_pictures(out, indices)
     comm.barrier()
 
     def draw_mine():
@@ -92,8 +94,24 @@ def render_run(run_dir, field: str | None = None, frames: str | None = None, out
 
 
 def _plan(run_dir: Path, choice: FieldChoice, frames: str | None):
-    picked = select_frames(list_frames(run_dir), frames)
-    return picked, datasets_needed(choice, dataset_shapes(picked[0].path))
+    every = list_frames(run_dir)
+    picked = select_frames(every, frames)
+    return (picked, datasets_needed(choice, dataset_shapes(picked[0].path)),
+            {ref.index for ref in every})
+
+
+PNG_NAME = re.compile(r"^render_(\d{6,})\.png$")
+
+
+def remove_stale_pictures(out: Path, indices: set[int]) -> list[Path]:
+    """Delete the ``render_NNNNNN.png`` in ``out`` of frames the run no longer has (a run
+    replaced with ``--force`` or restarted earlier had more); returns them. Pictures of
+    frames that exist stay, rendered this time or not."""
+    stale = [p for p in out.iterdir()
+             if (m := PNG_NAME.match(p.name)) and int(m.group(1)) not in indices]
+    for p in stale:
+        p.unlink()
+    return stale
 
 
 def _renderer(geometry, scale, size, camera):

@@ -43,6 +43,9 @@ def list_frames(run_dir) -> list[FrameRef]:
     Without an XDMF file (a folder of copied frames) the frame files are taken in number order,
     their times read from the files."""
     run_dir = Path(run_dir)
+    if run_dir.is_file():
+        raise RenderError(f"{run_dir}: a file, not a run folder; give the folder that holds "
+                          f"the run's frames ({run_dir.parent}), and --frames to pick some")
     if not run_dir.is_dir():
         raise RenderError(f"{run_dir}: no such run folder")
     xdmf = run_dir / XDMF_NAME

@@ -120,6 +120,8 @@ def test_a_folder_without_checkpoints_or_output(tmp_path, finished):
     for ckpt in frames_only.glob("ckpt_*.h5"):
         ckpt.unlink()
     lines, code = describe_run(frames_only)
+    # The scene's name from the frames when no checkpoint holds it (was "(unnamed)").
+    assert lines[1] == "scene:       disks_2d"
     assert code == 0 and lines[-3:] == [
         "checkpoints: none",
         "end time:    not recorded (frames do not hold it; a checkpoint does)",
@@ -166,3 +168,32 @@ def test_restart_into_another_runs_folder_needs_force(tmp_path, finished):
     hpcmpm(1, "restart", str(own / "ckpt_000000100.h5"), "--out", str(own), "--end-time",
            str(110 * DT), "--quiet")
     assert (own / "ckpt_000000110.h5").exists() and (own / "frame_000000.h5").exists()
+
+
+def test_info_on_a_truncated_checkpoint_by_name_and_in_its_folder(tmp_path, finished, capsys):
+    """A checkpoint cut short (a copy that did not finish) fails verification whether `info`
+    is given the file or its folder: exit 4 and "file is truncated" naming the previous one
+    (given the file, `info` exited 6 with HDF5's own message), and the folder's scene name
+    comes from the frames (it said "(unnamed)")."""
+    from types import SimpleNamespace
+
+    from hpcmpm.io.info import info_command
+
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    newest = run / "ckpt_000000100.h5"
+    data = newest.read_bytes()
+    newest.write_bytes(data[:len(data) // 2])
+    assert info_command(SimpleNamespace(file=str(newest))) == CheckpointError.exit_code
+    out = capsys.readouterr().out.splitlines()
+    assert out[-1].startswith("checksum:    FAILED: ckpt_000000100.h5: file is truncated (")
+    assert "ckpt_000000080.h5 may still be usable" in out[-1]
+    lines, code = describe_run(run)
+    assert code == CheckpointError.exit_code
+    assert lines[1] == "scene:       disks_2d"
+    assert "file is truncated" in lines[-2]
+    # A file that is not named as a checkpoint and cannot be opened stays "not readable".
+    other = run / "copy.h5"
+    other.write_bytes(data[:len(data) // 2])
+    with pytest.raises(OutputFileError, match="not a readable HDF5 file"):
+        info_command(SimpleNamespace(file=str(other)))

@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import random
 import re
+import shlex
 import shutil
 import socket
 import subprocess
@@ -222,16 +223,18 @@ def cluster():
             shutil.rmtree(folder, ignore_errors=True)
 
 
-def render(cluster: Cluster, name: str, time_limit: str, *extra: str, mpi: str = "pmi2") -> Path:
-    """`hpcmpm jobscript` run in the cluster's folder (where the job is submitted from)."""
-    script = cluster.folder / f"{name}.sh"
+def render(cluster: Cluster, name: str, time_limit: str, *extra: str, mpi: str = "pmi2",
+           scene: Path = ROOT / "inputs" / "disks_2d.toml") -> Path:
+    """`hpcmpm jobscript` run in the cluster's folder (where the job is submitted from), its
+    options after the scene as well as before."""
+    script = cluster.folder / f"{name.replace(' ', '_')}.sh"
     here = os.getcwd()
     os.chdir(cluster.folder)
     try:
         code = cli.main(["jobscript", "--scheduler", "slurm", "--nodes", "1",
                          "--ranks-per-node", "2", "--time", time_limit, "--mpi", mpi,
-                         "--out", f"runs/{name}", "--activate", f". {ROOT}/scripts/env.sh",
-                         "-o", str(script), str(ROOT / "inputs" / "disks_2d.toml"), "--",
+                         "--out", f"runs/{name}", str(scene),
+                         "--activate", f". {ROOT}/scripts/env.sh", "-o", str(script), "--",
                          *extra])
     finally:
         os.chdir(here)
@@ -261,9 +264,16 @@ def frames(folder: Path) -> list[Path]:
 
 def test_rendered_script_on_a_real_slurm(cluster):
     runs = cluster.folder / "runs"
+    # The requeued job's scene and output folder have spaces in their names (its log path in
+    # the #SBATCH line, the job name, the shell's variables), and the extra arguments that the
+    # restart must be given again follow it to the requeued job's `hpcmpm restart`.
+    spaced = cluster.folder / "disks copy.toml"
+    shutil.copy(ROOT / "inputs" / "disks_2d.toml", spaced)
     jobs = {
         # Never finishes by itself: the 1-minute wall time ends it (the long pole: first).
-        "requeue": cluster.submit(render(cluster, "requeue", "00:01:00", "--end-time", "1000")),
+        "requeue": cluster.submit(render(cluster, "re queue", "00:01:00", "--end-time", "1000",
+                                         "--checkpoint-every", "100000", "--debug-checks",
+                                         scene=spaced)),
         # Finishes: 2 ranks, 0.05 of simulated time (8 steps).
         "complete": cluster.submit(render(cluster, "complete", "00:05:00",
                                           "--end-time", "0.05")),
@@ -311,12 +321,14 @@ def test_rendered_script_on_a_real_slurm(cluster):
     stopped = [l for l in log.splitlines() if l.startswith("hpcmpm: stopped: SIGUSR1")]
     assert len(stopped) == 1, log  # once per job, labelled as the expected event it is
     assert f"requeueing job {job}" in log  # the script saw exit code 75 and requeued
-    ckpt = re.search(r"hpcmpm restart (\S+?)`", stopped[0]).group(1)
+    assert cluster.job(job)["JobName"] == "disks_copy"
+    # The command as a shell takes it: the folder's space is quoted.
+    ckpt = shlex.split(re.search(r"hpcmpm restart (.+?)`", stopped[0]).group(1))[0]
     ckpt = (cluster.folder / ckpt) if not ckpt.startswith("/") else Path(ckpt)
-    n_before = len(frames(runs / "requeue"))
+    n_before = len(frames(runs / "re queue"))
 
     def resumed():
-        later = frames(runs / "requeue")
+        later = frames(runs / "re queue")
         if len(later) <= n_before:
             return None
         _, attrs = read_frame(later[-1])

@@ -94,6 +94,28 @@ def test_output_of_another_run_is_not_overwritten(tmp_path):
     assert proc.returncode == 5 and "--force" in proc.stderr
 
 
+
+def test_force_replaces_the_other_runs_frames_and_their_pictures(tmp_path):
+    """`--force` removes the other run's frames, checkpoints, XDMF and the pictures made of
+    them (`hpcmpm render` / `plot` defaults); the user's own files and the job's log stay."""
+    from types import SimpleNamespace
+
+    from hpcmpm.runner import prepare_output_dir
+
+    out = tmp_path / "out"
+    (out / "render").mkdir(parents=True)
+    theirs = ["frame_000033.h5", "ckpt_000000500.h5", "particles.xdmf",
+              "render/render_000033.png", "render/render.mp4", "diagnostics.csv",
+              "diagnostics.png"]
+    kept = ["notes.txt", "slurm-42.out", "render/sketch.png"]
+    for name in theirs + kept:
+        (out / name).write_text("")
+    comm = SimpleNamespace(rank=0, size=1, bcast=lambda obj, root=0: obj, barrier=lambda: None)
+    prepare_output_dir(comm, out, force=True)
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()) == \
+        sorted(kept)
+
+
 def test_set_on_the_command_line_and_its_problems():
     proc = hpcmpm("validate", "inputs/disks_2d.toml", "--set", "simulation.dx=0.04",
                   "--set", "bodies.0.radius=0.1")

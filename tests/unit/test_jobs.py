@@ -124,7 +124,7 @@ def test_jobscript_command_checks_the_run_and_creates_the_log_folder(tmp_path, m
     assert cli.main([*base, str(scene), "-o", "job.sh"]) == 0
     assert (tmp_path / "runs" / "bar_2d").is_dir()
     text = (tmp_path / "job.sh").read_text()
-    assert "#SBATCH --output=runs/bar_2d/slurm-%j.out" in text and "--mpi=pmi2" in text
+    assert "#SBATCH --output=\"runs/bar_2d/slurm-%j.out\"" in text and "--mpi=pmi2" in text
 @pytest.mark.parametrize("has_mpi,mode", [(True, "mpio"), (False, "serial")])
 def test_script_writes_in_mpio_mode_when_h5py_has_mpi(tmp_path, has_mpi, mode):
     """The job runs with HPCMPM_IO_MODE=mpio exactly when the environment's h5py was built
@@ -200,3 +200,68 @@ def test_jobscript_defaults_and_extra_run_arguments_reach_the_script(tmp_path, m
     assert log.read_text().splitlines() == [
         f"srun --mpi=pmi2 --kill-on-bad-exit=1 hpcmpm run {scene} --out runs/bar_2d --quiet "
         f"--end-time 0.5 --set simulation.cfl=0.3"]
+
+
+@pytest.mark.parametrize("scheduler,launcher", [("slurm", "srun"), ("pbs", "mpiexec")])
+def test_a_requeued_job_restarts_with_the_runs_checkpoint_options(tmp_path, scheduler, launcher):
+    """The extra `hpcmpm run` arguments that a restart does not read from the checkpoint
+    (--checkpoint-every, --checkpoint-wall, --debug-checks) reach the requeued job's
+    `hpcmpm restart` too; those it does read (--end-time, --set: in the checkpoint) do not (a
+    restart refuses --set)."""
+    extra = ["--end-time", "2", "--checkpoint-every", "50", "--set", "simulation.cfl=0.3",
+             "--checkpoint-wall=00:20:00", "--debug-checks"]
+    proc, calls, out = _run_with_stubs(tmp_path, scheduler, launcher, 0, extra_args=extra)
+    assert any(c.endswith("--quiet " + " ".join(extra)) for c in calls), calls
+    (out / "ckpt_000000100.h5").write_text("")
+    (tmp_path / "calls.log").unlink()
+    proc, calls, _ = _run_with_stubs(tmp_path, scheduler, launcher, 0, extra_args=extra)
+    assert any(c.endswith(f"hpcmpm restart {out}/ckpt_000000100.h5 --quiet --checkpoint-every "
+                          f"50 --checkpoint-wall=00:20:00 --debug-checks") for c in calls), calls
+
+
+def test_spaces_and_shell_characters_in_paths_reach_the_commands_whole(tmp_path):
+    """A scene and an output folder named with a space, a quote and a dollar sign: the job
+    name is one word the schedulers take (`job_name`), SLURM's log directive is quoted, and
+    the launched command gets each path as one argument, unexpanded."""
+    from hpcmpm.jobs import job_name
+
+    out = tmp_path / "my runs" / "it's $HOME"
+    proc, calls, _ = _run_with_stubs(tmp_path, "slurm", "srun", 0)
+    text = render("slurm", "my scenes/disks copy (2).toml", 1, 1, "00:10:00", out_dir=str(out))
+    assert "#SBATCH --job-name=disks_copy_2\n" in text
+    assert f'#SBATCH --output="{out}/slurm-%j.out"\n' in text
+    script = tmp_path / "spaced.sh"
+    script.write_text(text.replace("\nsource ", "\n: "))   # no environment to activate
+    bin_dir = tmp_path / "bin"
+    (bin_dir / "srun").write_text('#!/usr/bin/env bash\nfor a in "$@"; do echo "[$a]"; done '
+                                  f'>> {tmp_path}/argv.log\n')
+    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", SLURM_JOB_ID="42")
+    assert run_in_group(["bash", str(script)], env=env, timeout=60, cwd=tmp_path).returncode == 0
+    argv = (tmp_path / "argv.log").read_text().splitlines()
+    assert "[my scenes/disks copy (2).toml]" in argv and f"[{out}]" in argv, argv
+    assert out.is_dir()
+    assert job_name("inputs/2d.toml") == "j2d" and job_name("inputs/ü.toml") == "hpcmpm"
+
+
+def test_pbs_refuses_a_log_folder_it_cannot_name():
+    with pytest.raises(JobScriptError, match="cannot hold a space or a quote; pass an --out"):
+        render("pbs", "x.toml", 1, 1, "00:10:00", out_dir="runs/with space")
+    with pytest.raises(JobScriptError, match="double quote"):
+        render("slurm", "x.toml", 1, 1, "00:10:00", out_dir='runs/a"b')
+    assert "#PBS -o runs/plain/pbs.out\n" in render("pbs", "x.toml", 1, 1, "00:10:00",
+                                                    out_dir="runs/plain")
+
+
+def test_jobscript_options_may_follow_the_scene(tmp_path, monkeypatch):
+    """`hpcmpm jobscript ... SCENE -o job.sh -- --end-time 0.5`: the options after the scene
+    are read and what follows `--` is the run's (argparse alone refused it)."""
+    from hpcmpm import cli
+
+    scene = Path("inputs/bar_2d.toml").resolve()
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["jobscript", "--scheduler", "slurm", "--time", "00:10:00", str(scene),
+                     "--activate", "true", "-o", "job.sh", "--", "--end-time", "0.5"]) == 0
+    assert "--quiet --end-time 0.5)" in (tmp_path / "job.sh").read_text()
+    with pytest.raises(SystemExit):   # an unknown option before `--` is still refused
+        cli.main(["jobscript", "--scheduler", "slurm", "--time", "00:10:00", str(scene),
+                  "--bogus", "--", "--end-time", "0.5"])

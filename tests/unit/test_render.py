@@ -262,6 +262,10 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         code, err = hpcmpm(capsys, verb, str(tmp_path / "nothing"))
         assert code == 2 and "no such run folder" in err, (verb, err)
         assert not (tmp_path / "nothing").exists(), verb    # a typo makes no folder
+        frame = sorted(run.glob("frame_*.h5"))[0]
+        code, err = hpcmpm(capsys, verb, str(frame))
+        assert code == 2 and f"{frame}: a file, not a run folder; give the folder that " \
+            f"holds the run's frames ({run})" in err, (verb, err)
 
 
 def test_frames_from_the_end_on_the_command_line(tmp_path, capsys):
@@ -596,3 +600,21 @@ def test_curve_against_reference_returns_the_plotted_difference(tmp_path):
                                    ([0.0, 1.0, 3.0], [0.0, 10.0, 30.0]))
     np.testing.assert_allclose(diff, y - 10.0 * x, rtol=1e-15)
     assert (tmp_path / "f.png").stat().st_size > 5000
+
+
+def test_pictures_of_frames_the_run_no_longer_has_are_removed(tmp_path):
+    """Rendering a run whose folder holds PNGs of frames it does not have (from a longer run
+    it replaced) deletes those, keeps the pictures of its own frames, rendered now or not,
+    and leaves other files alone."""
+    x = lattice((0.2, 0.5), (0.6, 0.9), 0.05)
+    run = write_known_run(tmp_path / "run", SCENE_2D, x, times=(0.0, 0.1, 0.2))
+    pictures = run / "render"
+    pictures.mkdir()
+    for name in ("render_000001.png", "render_000007.png", "render_000033.png", "notes.png",
+                 "render_1.png"):
+        (pictures / name).write_bytes(b"old")
+    result = render_run(run, frames="-1:", size=(160, 120), movie="none", comm=OneRank())
+    assert [p.name for p in result.pngs] == ["render_000002.png"]
+    assert sorted(p.name for p in pictures.iterdir()) == [
+        "notes.png", "render_000001.png", "render_000002.png", "render_1.png"]
+    assert (pictures / "render_000001.png").read_bytes() == b"old"   # frame 1 exists

@@ -310,6 +310,17 @@ def test_bad_overrides_are_reported_like_file_problems():
     ]
 
 
+
+def test_override_into_a_section_the_file_lacks_names_the_missing_entry():
+    """``--set colliders.0.radius=0.1`` on a scene without [[colliders]]: the entry is missing
+    (it said "colliders: must be an array of tables, got a table", a table made up by the
+    override itself)."""
+    assert "[[colliders]]" not in GOOD and "[[prescribed]]" not in GOOD
+    assert problems(GOOD, ["colliders.0.radius=0.1", "prescribed.lid.velocity=[1, 0]"]) == [
+        "scene.toml: --set colliders.0.radius: no entry 0 (colliders has 0)",
+        "scene.toml: --set prescribed.lid.velocity: no entry named 'lid' (prescribed has 0)"]
+
+
 def test_set_index_one_past_the_end_and_an_empty_key_are_reported():
     """``--set bodies.2...`` with two bodies names the count (not an IndexError), and
     ``--set =5`` has no key."""
@@ -526,3 +537,15 @@ def test_a_run_without_an_end_is_accepted_with_a_frame_interval():
 
     scene = parse_scene(GOOD.replace("end_time = 3.0", "end_time = inf"), path="s.toml")
     assert math.isinf(scene.end_time) and scene.output.every == 0.1
+
+
+def test_unknown_material_is_reported_beside_a_bad_material():
+    """Every problem at once (docs/scene-format.md, "Errors"): a body naming an undefined
+    material is reported although another material has a problem of its own (it was held
+    back until that one was fixed), and a body naming the bad material is not "unknown"."""
+    lines = problems(GOOD, ["materials.rubber.nu=0.7", "bodies.1.material=rubbr"])
+    assert "scene.toml: materials[0].nu: must be < 0.5, got 0.7 (from --set " \
+        "materials.rubber.nu=0.7)" in lines
+    assert "scene.toml: bodies[1].material: unknown material 'rubbr' (defined: rubber) " \
+        "(from --set bodies.1.material=rubbr)" in lines
+    assert not any("bodies[0].material" in line for line in lines), lines

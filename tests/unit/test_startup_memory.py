@@ -44,10 +44,30 @@ def test_refusal_names_count_bytes_per_rank_and_available_memory():
     assert "2,744,000,000 particles" in line and "per rank on 4 rank(s)" in line
     assert "64.0 GiB available for 4 rank(s)" in line
     needed = int(re.search(r"at least (\d+) ranks", line).group(1))
-    # That many ranks' shares do fit in what one rank may have here.
+    # The advice is the least rank count the same check accepts: `needed` ranks, 4 a node,
+    # fit in 64 GiB a node; one fewer does not (followed, the advice is not refused again).
     assert startup.estimate_memory(scene, 2_744_000_000, needed, True).per_rank * 4 \
-        <= 64 * 2**30 * 1.2
+        <= 64 * 2**30
+    assert startup.estimate_memory(scene, 2_744_000_000, needed - 1, True).per_rank * 4 \
+        > 64 * 2**30
     assert startup.memory_problem(scene, estimate, 4, 10**15) is None
+
+
+def test_validate_advice_counts_the_busiest_rank_of_the_advised_run():
+    """`hpcmpm validate` estimates one rank; the ranks it advises hold up to the rebalance
+    factor (1.2) above the mean, which a count scaled from one rank left out (it advised 41
+    ranks a node where each then needed 26 GiB of 22 GiB)."""
+    scene = load_scene(*BIG[:1], [BIG[2]])
+    one = startup.estimate_memory(scene, 2_744_000_000, 1, True)
+    available = 22 * 2**30
+    line = startup.memory_problem(scene, one, 1, available)
+    needed = int(re.search(r"at least (\d+) ranks", line).group(1))
+    assert startup.estimate_memory(scene, 2_744_000_000, needed, True).per_rank <= available
+    assert startup.estimate_memory(scene, 2_744_000_000, needed - 1, True).per_rank \
+        > available
+    # and the search is not the scaled count (which is about 1.2x too few)
+    scaled = (one.per_rank - startup.BASE_BYTES) / (available - startup.BASE_BYTES)
+    assert needed > 1.15 * scaled
 
 
 def test_validate_and_run_report_a_scene_too_big_in_one_line():
