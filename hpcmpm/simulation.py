@@ -71,7 +71,9 @@ def configured_materials(scene, dim: int) -> list[Material]:
             material = make_material(spec, dim)
             material.configure(scene)
         except SceneError as exc:
-            raise SceneError([f"{scene.path}: materials[{i}]: {p}" for p in exc.problems]) \
+            # A material that names the file and its key itself (`configure`) keeps its line.
+            raise SceneError([p if p.startswith(f"{scene.path}: ") else
+                              f"{scene.path}: materials[{i}]: {p}" for p in exc.problems]) \
                 from None
         materials.append(material)
     return materials

@@ -320,13 +320,18 @@ def _weighted_bincount(bins, weights, length):
 
 
 def neighbour_ranks(boxes: np.ndarray, me: int, shifts: np.ndarray, reach: int) -> np.ndarray:
-    """Ranks whose box, or one of its images ``box + shift``, meets box ``me`` expanded by
-    ``reach`` cells (symmetric: expanding either box is the same test). Sorted, without me."""
+    """Ranks whose box, or one of its images ``box + shift``, lies within ``reach`` cells of
+    box ``me``: on every axis each box's upper face plus ``reach`` passes the other's lower
+    face. Symmetric, also for an empty box (``lo == hi``: a rank without cells, as when a
+    domain has fewer cells than ranks); the test "the other box meets mine expanded" is not,
+    since an empty box meets nothing, and a rank that listed an empty neighbour which did
+    not list it back waited for it forever in the neighbour collectives. Sorted, without
+    me."""
     lo, hi = boxes[:, 0], boxes[:, 1]
-    mine_lo, mine_hi = boxes[me, 0] - reach, boxes[me, 1] + reach
+    mine_lo, mine_hi = boxes[me, 0], boxes[me, 1]
     found = np.zeros(len(boxes), dtype=bool)
     for s in shifts:
-        found |= np.all(np.minimum(mine_hi, hi + s) > np.maximum(mine_lo, lo + s), axis=1)
+        found |= np.all((mine_hi + reach > lo + s) & (hi + s + reach > mine_lo), axis=1)
     found[me] = False
     return np.flatnonzero(found).astype(np.int64)
 

@@ -160,7 +160,23 @@ class SemiImplicitIntegrator:
 
     def stable_dt(self, sim, speed: float) -> float:
         """Advection bound (module docstring): the largest dt with
-        ``(v + |g| dt) dt <= cfl dx``, v = max(|v_p|, kinematic boundary speed)."""
+        ``(v + |g| dt) dt <= cfl dx``, v = max(|v_p|, kinematic boundary speed), and no more
+        than the explicit limit of what this step integrates explicitly: the materials off the
+        grid (peridynamic bodies with integration = "pd", stepped by their bond forces) and
+        the step extensions. Measured: an off-grid PMB body (E = 1e8) beside a
+        semi-implicit neo-Hookean block took the advection step (0.01, 144 times its bound of
+        6.9e-5) and flew apart to 265 m/s in 2 steps while the run reported success; with the
+        bound it takes 289 steps to t = 0.02, as the explicit run does, at 1.08 m/s."""
+        dt = self._advection_dt(sim, speed)
+        for material in sim.materials:
+            if not material.on_grid:
+                dt = min(dt, material.dt_limit(sim.dx))
+        for extension in sim.extensions:
+            if hasattr(extension, "dt_limit"):
+                dt = min(dt, extension.dt_limit(sim))
+        return dt
+
+    def _advection_dt(self, sim, speed: float) -> float:
         budget = sim.scene.cfl * sim.dx
         v = max(float(speed), kinematic_speed(sim))
         g = float(np.linalg.norm(sim.gravity))

@@ -146,6 +146,29 @@ def test_neighbours_reach_past_a_thin_box():
     assert 2 in set(neighbour_ranks(boxes, 0, zero, NEIGHBOUR_REACH).tolist())
 
 
+def test_neighbours_are_symmetric_also_for_empty_boxes():
+    """q is my neighbour exactly when I am q's, whatever the boxes (empty ones included: a
+    domain of fewer cells than ranks leaves ranks without a box) and periodic shifts: the
+    neighbour collectives wait for every listed rank, so one listing that was not returned
+    hung the run (1 periodic cell, 2 ranks)."""
+    rng = np.random.default_rng(7)
+    shifts = np.array([[0, 0], [5, 0], [-5, 0]])
+    for _ in range(200):
+        n = int(rng.integers(2, 7))
+        lo = rng.integers(0, 5, size=(n, 2))
+        size = rng.integers(0, 3, size=(n, 2)) * (rng.random((n, 1)) < 0.7)  # some empty
+        boxes = np.stack([lo, lo + size], axis=1)
+        lists = [set(neighbour_ranks(boxes, r, shifts, NEIGHBOUR_REACH).tolist())
+                 for r in range(n)]
+        for r in range(n):
+            for q in lists[r]:
+                assert r in lists[q], (boxes.tolist(), r, q)
+    # An empty box beside a full one: both see each other.
+    boxes = np.array([[[0, 0], [1, 1]], [[1, 1], [1, 1]]])
+    assert neighbour_ranks(boxes, 0, shifts[:1], NEIGHBOUR_REACH).tolist() == [1]
+    assert neighbour_ranks(boxes, 1, shifts[:1], NEIGHBOUR_REACH).tolist() == [0]
+
+
 def test_cell_count_rounds_a_domain_that_is_a_whole_number_of_cells():
     """0.3 / 0.1 is 2.9999999999999996 in floating point: the domain is 3 cells, not 2 (a
     cell count by floor would drop the last cell column, hence the period of a periodic

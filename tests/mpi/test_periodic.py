@@ -259,3 +259,50 @@ def test_wrap_keeps_inside_points_and_maps_the_upper_face_to_the_lower():
     domain.wrap(hair)
     assert -1.0 <= hair[0, 0] < 1.0
 
+
+
+ONE_CELL = """
+[simulation]
+dim = 2
+domain = {{ lower = [0.0, 0.0], upper = [1.0, 1.0] }}
+dx = 1.0
+end_time = 0.01
+gravity = [0.0, -9.81]
+periodic = [{axes}]
+
+[[materials]]
+name = "m"
+type = "neo_hookean"
+density = 1000.0
+E = 1e4
+nu = 0.3
+
+[[bodies]]
+material = "m"
+shape = "box"
+lower = [0.0, 0.0]
+upper = [1.0, 1.0]
+velocity = [1.0, 0.0]
+"""
+
+
+@pytest.mark.parallel(ranks=[2, 4])
+def test_a_domain_of_fewer_cells_than_ranks_runs():
+    """One cell, periodic in x (and in x and y), on more ranks than cells: a rank without a
+    box and the ranks beside it list each other (`neighbour_ranks`; the full rank listed the
+    empty one, which did not list it back, and the run hung in the neighbour collectives). It
+    ends and agrees with the 1-rank run."""
+    for axes in ('"x"', '"x", "y"'):
+        scene = parse_scene(ONE_CELL.format(axes=axes))
+        sim = simulate(scene, comm=Communicator(MPI.COMM_WORLD))
+        got = gather_by_id(sim.domain, sim.particles)
+        if MPI.COMM_WORLD.rank == 0:
+            one = simulate(scene, comm=Communicator(MPI.COMM_SELF))
+            reference = gather_by_id(one.domain, one.particles)
+        else:
+            reference = None
+        reference = MPI.COMM_WORLD.bcast(reference)
+        assert sim.time == pytest.approx(0.01)
+        for name in ("id", "x", "v"):
+            # Ghost sums in another order only.
+            assert np.allclose(got[name], reference[name], rtol=1e-12, atol=1e-14), name

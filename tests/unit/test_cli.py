@@ -237,3 +237,22 @@ def test_single_process_verbs_print_once_under_a_launcher(tmp_path):
     proc = mpi_hpcmpm(2, "validate", str(bad), check=False)
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.count("materials[0].E: must be > 0") == 1, proc.stderr
+
+
+def test_a_material_problem_found_in_the_scene_is_one_line_naming_file_and_key(tmp_path):
+    """A material that can only judge itself against the whole scene (Oldroyd-B's 'fe_bdf2'
+    with the semi-implicit integrator) prints `FILE: materials[i].key: ...` once; the prefix
+    appeared twice ("FILE: materials[0]: FILE: materials[0].plasticity: ...")."""
+    text = Path("inputs/toothpaste_3d.toml").read_text()
+    assert 'type = "oldroyd_b"' in text and 'integrator = "semi_implicit"' in text
+    scene = tmp_path / "paste.toml"
+    scene.write_text(text.replace('type = "oldroyd_b"', 'type = "oldroyd_b"\nplasticity = '
+                                  '"fe_bdf2"', 1))
+    proc = hpcmpm("validate", str(scene))
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert lines[0] == (
+        f"hpcmpm: error: {scene}: materials[0].plasticity: 'fe_bdf2' runs with the explicit "
+        f"integrator only (its semi-implicit force is 2/3 of the deviatoric stress); use 'fe' "
+        f"or 'ob_spd'")
+    assert all(line.count(str(scene)) == 1 for line in lines), lines
