@@ -183,6 +183,29 @@ class SPBExtension(CheckpointedBonds):
         dt_cfl = sim.scene.cfl * sim.dx / sim.max_wave_speed()
         return 1.0 / math.sqrt(1.0 / dt_cfl ** 2 + 1.0 / self.dt_pd ** 2)
 
+    @staticmethod
+    def _report_undefined_stress(sim, material, fields, rows, F, tau) -> None:
+        """A PD stress that divides by zero (snow's F_E = F^PD F_P^-1 with a singular F_P: a
+        state already blown up) stops the run through the health check, on every rank alike:
+        the particles it cannot be computed for get a non-finite velocity (the next step's
+        check reports their ids, step and time) and stress 0 for the rest of this step, the
+        others their stress, and the material's failure note names the cause (it was a
+        ZeroDivisionError traceback)."""
+        bad = ~(np.abs(np.linalg.det(fields["Fp"])) > 0.0) if "Fp" in fields else \
+            np.ones(len(rows), dtype=bool)
+        if not bad.any():
+            bad[:] = True
+        good = ~bad
+        tau[bad] = 0.0
+        if good.any():
+            part = np.empty((int(good.sum()),) + tau.shape[1:])
+            pd_stress(material, {k: v[good] for k, v in fields.items()},
+                      np.ascontiguousarray(F[good]), part)
+            tau[good] = part
+        sim.particles["v"][rows[bad]] = np.nan
+        material.failures.append("the peridynamic stress is undefined (a singular plastic "
+                                 "deformation F_P, det F_P = 0)")
+
     # -- P2G: eq. 6.10 ------------------------------------------------------------------------
     def stress_chunk(self, sim, g: int, start: int, stop: int, tau: np.ndarray, dt: float):
         k = self.index.get(g)
@@ -388,7 +411,11 @@ class SPBExtension(CheckpointedBonds):
                           if name not in SPB_FIELDS}
                 if "L" in p:            # the step's velocity gradient (artificial viscosity)
                     fields["L"] = p["L"][rows]
-                pd_stress(material, fields, np.ascontiguousarray(self.F[a:e]), tau[a:e])
+                try:
+                    pd_stress(material, fields, np.ascontiguousarray(self.F[a:e]), tau[a:e])
+                except ZeroDivisionError:
+                    self._report_undefined_stress(sim, material, fields, rows,
+                                                  np.ascontiguousarray(self.F[a:e]), tau[a:e])
         correspondence_force_state(self.F, self.Kinv, tau, self.active, n, self.A)
         # An inverted PD family (det F^PD <= 0: a particle left with a few bonds that no
         # longer span the space) carries no PD stress, like a detached one, instead of

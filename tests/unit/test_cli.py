@@ -256,3 +256,46 @@ def test_a_material_problem_found_in_the_scene_is_one_line_naming_file_and_key(t
         f"integrator only (its semi-implicit force is 2/3 of the deviatoric stress); use 'fe' "
         f"or 'ob_spd'")
     assert all(line.count(str(scene)) == 1 for line in lines), lines
+
+
+SNOW_SPB = """
+[simulation]
+dim = 2
+domain = { lower = [0.0, 0.0], upper = [1.0, 1.0] }
+dx = 0.05
+end_time = 0.06
+gravity = [0.0, -9.81]
+
+[[materials]]
+name = "m"
+type = "snow"
+density = 1000.0
+E = 1e4
+nu = 0.3
+theta_c = 0.025
+theta_s = 0.0075
+xi = 10
+failure = { model = "spb", grid_energy = 0.01, bond_energy = 0.5 }
+
+[[bodies]]
+material = "m"
+shape = "box"
+lower = [0.3, 0.2]
+upper = [0.7, 0.5]
+velocity = [0.0, -5.0]
+"""
+
+
+def test_an_undefined_peridynamic_stress_stops_the_run_as_an_instability(tmp_path):
+    """Hardening snow turned peridynamic (SPB) blows up in this coarse scene: its PD step
+    bound does not follow the hardening (noted for a decision), and F_P turns singular, so
+    F^PD F_P^-1 divides by zero. The run stops as an instability (exit 3, the step, time,
+    ids and the cause on one line), where a ZeroDivisionError traceback ended it."""
+    scene = tmp_path / "snow_spb.toml"
+    scene.write_text(SNOW_SPB)
+    proc = hpcmpm("run", str(scene), "--out", str(tmp_path / "out"), "--quiet")
+    assert proc.returncode == 3, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("hpcmpm: error: numerical instability at step ")
+    assert "the peridynamic stress is undefined (a singular plastic deformation F_P" in line

@@ -340,3 +340,28 @@ def test_newtonian_fluid_shears_forever(dim, plasticity):
     assert sigma[0, 1] == pytest.approx(MU_N * rate, rel=1e-12)
     assert abs(res.J[-1, 0] - 1.0) < 1e-12
     np.testing.assert_array_equal(res.fields["b"][0], np.eye(dim))
+
+
+@pytest.mark.parametrize("h", (0.5, 2.0))
+def test_herschel_bulkley_flow_curve_method_is_the_steady_stress(h):
+    """HerschelBulkley.flow_curve(gdot), the documented tau_y + K gdot^h, is the steady stress
+    the driven material point reaches (2D, the run of the steady flow-curve test)."""
+    mat = make_material(Spec("herschel_bulkley", {
+        "mu": MU, "lambda": LAM, "yield_strain": 0.01, "flow_consistency": 0.01,
+        "flow_index": h}), 2)
+    L = np.zeros((2, 2))
+    L[0, 1] = 1.0
+    res = drive(mat, lambda t: L, 1e-4, 5000)
+    # 0.5 % as the flow-curve test (measured 0.003 % to 0.02 % there); a wrong exponent of 2
+    # in K is a factor 2^(1/2).
+    assert mat.flow_curve(1.0) == pytest.approx(res.sigma()[-1, 0, 0, 1], rel=5e-3)
+
+
+def test_von_mises_shear_yield_stress_method_is_the_plateau():
+    """VonMises.shear_yield_stress() is the simple-shear plateau the driven point reaches."""
+    mat = make_material(Spec("von_mises", {"mu": MU, "lambda": LAM, "yield_strain": 0.01}), 2)
+    L = np.zeros((2, 2))
+    L[0, 1] = 1.0
+    res = drive(mat, lambda t: L, 1e-4, 2000)
+    # 0.5 % as the plateau test (measured 3e-5 there).
+    assert mat.shear_yield_stress() == pytest.approx(res.sigma()[-1, 0, 0, 1], rel=5e-3)
