@@ -113,6 +113,22 @@ class PDExtension:
                 f"{worst / 2**30:.1f} GiB on one rank, more than half of its "
                 f"{memory / 2**30:.1f} GiB: lower the horizon or use more ranks")
 
+    def _check_distinct(self, x0: np.ndarray) -> None:
+        """Refuse particles of this material at the same reference place (bodies that overlap
+        sample their shared lattice points twice): their bond has no length, so its stretch
+        and force are undefined, and the run stopped at its first step as a numerical
+        instability whose hint (a smaller time step) could not help. Coincident particles
+        have the same owner, so each rank looks at its own (collective)."""
+        cells = np.round(x0 / (1e-6 * self.material.spacing))
+        repeated = len(x0) - len(np.unique(cells, axis=0)) if len(x0) else 0
+        total = self.sim.domain.sum(int(repeated))
+        if total:
+            raise SceneError(
+                f"{self._where()}: {total} particle(s) of material "
+                f"{self.material.spec.name!r} lie where another of its particles lies (bodies "
+                f"that overlap): a peridynamic bond needs two distinct places; make its "
+                f"bodies disjoint or merge them into one")
+
     def _initialize(self, start, stop) -> None:
         """Families in the reference configuration (collective)."""
         self._check_memory(stop - start)
@@ -120,6 +136,7 @@ class PDExtension:
         x0 = p["x0"][start:stop]
         unset = np.isnan(x0[:, 0])
         x0[unset] = p["x"][start:stop][unset]
+        self._check_distinct(x0)
         self._rebuild(start, stop)
         prm = self.material.params
         family = find_families(self.pts.x0, self.pts.ids, stop - start, self.material.spacing,

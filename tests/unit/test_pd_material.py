@@ -278,3 +278,26 @@ def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, sta
           f"{ext.bonds.n_bonds * 8 * ghost_states / 1e6:.2f} MB, this one "
           f"{ghosts.nbytes() / 1e6:.2f} MB")
     assert ghosts.n_bonds <= entries < 2 * ghosts.n_bonds
+
+
+def test_overlapping_bodies_of_one_pd_material_are_refused(tmp_path, capsys):
+    """A second body over part of the plate samples the shared lattice points twice: bonds of
+    no length, whose force is undefined. The run is refused in one line naming the count (it
+    stopped at its first step as a numerical instability that advised a smaller step)."""
+    patch = """
+[[bodies]]
+name = "patch"
+material = "glass"
+shape = "box"
+lower = [0.35, 0.4]
+upper = [0.4, 0.43]
+"""
+    path = tmp_path / "plate.toml"
+    path.write_text(PLATE.replace("[walls]", patch + "\n[walls]"))
+    assert cli.main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet",
+                     "--end-time", "1e-6"]) == 2
+    # 5 x 3 lattice points of spacing 0.01 inside the patch, which lies in the left half.
+    assert capsys.readouterr().err.strip() == (
+        f"hpcmpm: error: {path}: materials[0]: 15 particle(s) of material 'glass' lie where "
+        f"another of its particles lies (bodies that overlap): a peridynamic bond needs two "
+        f"distinct places; make its bodies disjoint or merge them into one")
