@@ -287,10 +287,11 @@ velocity = [0.0, -5.0]
 
 
 def test_an_undefined_peridynamic_stress_stops_the_run_as_an_instability(tmp_path):
-    """Hardening snow turned peridynamic (SPB) blows up in this coarse scene: its PD step
-    bound does not follow the hardening (noted for a decision), and F_P turns singular, so
-    F^PD F_P^-1 divides by zero. The run stops as an instability (exit 3, the step, time,
-    ids and the cause on one line), where a ZeroDivisionError traceback ended it."""
+    """Snow (xi = 10) whose particles all turn peridynamic (SPB) blows up at impact in this
+    coarse scene (J_P < 0 within a few steps of landing, while it was 1 before: not the time
+    step of its hardening; the cause is open), and F_P turns singular, so F^PD F_P^-1 divides
+    by zero. The run stops as an instability (exit 3, the step, time, ids and the cause on
+    one line), where a ZeroDivisionError traceback ended it."""
     scene = tmp_path / "snow_spb.toml"
     scene.write_text(SNOW_SPB)
     proc = hpcmpm("run", str(scene), "--out", str(tmp_path / "out"), "--quiet")
