@@ -26,7 +26,7 @@ class SceneError(HpcmpmError):
 
 
 class InstabilityError(HpcmpmError):
-    """The simulation blew up (non-finite value or det F <= 0)."""
+    """The simulation blew up (non-finite value, det F <= 0, a particle far outside)."""
 
     exit_code = 3
 

@@ -605,9 +605,11 @@ class Simulation:
         when a particle holds a non-finite value, det F <= 0 or J <= 0."""
         p = self.particles
         kinds = [k for k in ("F", "J") if k in p] or ["mass"]  # mass > 0: only x, v checked
-        speed, nbad = scan_health(p["x"], p["v"], p[kinds[0]], self._bad, MAX_REPORTED)
+        lo, hi = self.health_bounds()
+        speed, nbad = scan_health(p["x"], p["v"], p[kinds[0]], self._bad, MAX_REPORTED, lo, hi)
         if nbad == 0 and len(kinds) > 1:
-            speed, nbad = scan_health(p["x"], p["v"], p[kinds[1]], self._bad, MAX_REPORTED)
+            speed, nbad = scan_health(p["x"], p["v"], p[kinds[1]], self._bad, MAX_REPORTED,
+                                      lo, hi)
         # One allreduce for the step's global decisions (speed, health, stop, far particles).
         speed, total_bad = self.domain.agree(p, speed, int(nbad))
         if self.domain.moved_in_agree:  # far jumps delivered: the order is stale
@@ -615,6 +617,17 @@ class Simulation:
         if total_bad:
             self.raise_instability(int(nbad), total_bad)
         return speed
+
+    def health_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where a particle may be: the domain widened on every side by its largest extent.
+        Walls, colliders and periodic wraps keep particles within about a cell of the
+        domain; one a whole domain size beyond it has blown up, even with finite values
+        (measured: SPB probes flung particles to 1e5 m with finite x, v and det F > 0, and
+        the next grid block asked for 374 GiB: a MemoryError traceback)."""
+        lo = np.asarray(self.scene.domain_lo, dtype=np.float64)
+        hi = np.asarray(self.scene.domain_hi, dtype=np.float64)
+        reach = float(np.max(hi - lo))
+        return lo - reach, hi + reach
 
     def raise_instability(self, nbad_local: int, total_bad: int) -> None:
         p = self.particles
@@ -630,7 +643,8 @@ class Simulation:
         cause = f" ({'; '.join(details[:MAX_REPORTED])})" if details else ""
         raise InstabilityError(
             f"numerical instability at step {self.step_index}, t={self.time:.6g}: "
-            f"{total_bad} particle(s) with a non-finite value or det F <= 0, ids {ids}{more}, "
+            f"{total_bad} particle(s) with a non-finite value, det F <= 0 or a position "
+            f"a domain size beyond the domain, ids {ids}{more}, "
             f"material {', '.join(repr(n) for n in names)}{cause}. "
             f"Hint: lower simulation.cfl (now {self.scene.cfl}) or a fixed simulation.dt, "
             f"or refine simulation.dx (now {self.dx}).")

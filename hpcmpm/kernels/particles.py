@@ -12,13 +12,15 @@ from .deformation import volume_ratio
 
 
 @njit(cache=True)
-def scan_health(x, v, F, bad, max_report):
+def scan_health(x, v, F, bad, max_report, lo, hi):
     """Largest particle speed and the indices of broken particles.
 
-    A particle is broken when x, v or F holds a non-finite value or det F <= 0 (an inverted
-    or collapsed element: the stress models are undefined there). F may be the (n,) volume
-    ratio J of a scene of volumetric materials (`hpcmpm.kernels.deformation`). Writes up to
-    ``max_report`` indices into ``bad``; returns (max speed, number of broken particles)."""
+    A particle is broken when x, v or F holds a non-finite value, det F <= 0 (an inverted
+    or collapsed element: the stress models are undefined there) or x lies outside
+    [lo, hi] (far beyond the domain: a blown-up state, which would next ask for a grid block
+    reaching it). F may be the (n,) volume ratio J of a scene of volumetric materials
+    (`hpcmpm.kernels.deformation`). Writes up to ``max_report`` indices into ``bad``;
+    returns (max speed, number of broken particles)."""
     n, dim = x.shape
     vmax2 = 0.0
     nbad = 0
@@ -27,7 +29,7 @@ def scan_health(x, v, F, bad, max_report):
         ok = True
         for a in range(dim):
             s += v[p, a] * v[p, a]
-            if not (math.isfinite(x[p, a]) and math.isfinite(v[p, a])):
+            if not (lo[a] <= x[p, a] <= hi[a] and math.isfinite(v[p, a])):
                 ok = False
         J = volume_ratio(F, p)
         if not (math.isfinite(J) and J > 0.0):

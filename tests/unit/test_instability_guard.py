@@ -32,3 +32,33 @@ def test_too_large_fixed_dt_stops_with_a_clear_message(tmp_path):
             for name in ("x", "v", "F"):
                 assert np.all(np.isfinite(f[f"particles/{name}"][...])), frame
     assert not list(out.glob("*.tmp"))
+
+
+def test_a_particle_far_outside_the_domain_is_broken():
+    """`scan_health`: a finite particle more than the domain's size outside it is a blown-up
+    state (its grid block would be enormous: a 374 GiB allocation failed with a MemoryError
+    traceback); one just beyond a face (advected a little past a wall) is not, and NaN in x
+    is broken as before."""
+    from hpcmpm.kernels.particles import scan_health
+
+    lo, hi = np.array([-1.0, -1.0]), np.array([2.0, 2.0])   # the unit domain, widened by 1
+    x = np.array([[0.5, 0.5], [1.02, -0.01], [0.5, 2.5], [-1.5, 0.5], [1e5, 0.5],
+                  [np.nan, 0.5], [2.0, -1.0]])
+    v = np.ones_like(x)
+    F = np.tile(np.eye(2), (len(x), 1, 1))
+    bad = np.zeros(8, dtype=np.int64)
+    speed, nbad = scan_health(x, v, F, bad, 8, lo, hi)
+    assert nbad == 4 and sorted(bad[:nbad]) == [2, 3, 4, 5]
+    assert speed == np.sqrt(2.0)
+
+
+def test_simulation_allows_a_domain_size_around_the_domain():
+    from hpcmpm.runner import make_domain
+    from hpcmpm.scene import load_scene
+    from hpcmpm.simulation import Simulation
+
+    scene = load_scene("inputs/dam_break_2d.toml")
+    lo, hi = Simulation(scene, make_domain(scene)).health_bounds()
+    extent = max(np.subtract(scene.domain_hi, scene.domain_lo))
+    np.testing.assert_array_equal(lo, np.subtract(scene.domain_lo, extent))
+    np.testing.assert_array_equal(hi, np.add(scene.domain_hi, extent))
