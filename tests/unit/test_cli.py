@@ -4,6 +4,7 @@ traceback. Each case edits a valid scene so exactly one thing is wrong."""
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_scene import CASES
 from launch import run_in_group
@@ -286,12 +287,13 @@ velocity = [0.0, -5.0]
 """
 
 
-def test_an_undefined_peridynamic_stress_stops_the_run_as_an_instability(tmp_path):
+def test_a_blown_up_snow_spb_run_stops_as_an_instability(tmp_path):
     """Snow (xi = 10) whose particles all turn peridynamic (SPB) blows up at impact in this
     coarse scene (J_P < 0 within a few steps of landing, while it was 1 before: not the time
-    step of its hardening; the cause is open), and F_P turns singular, so F^PD F_P^-1 divides
-    by zero. The run stops as an instability (exit 3, the step, time, ids and the cause on
-    one line), where a ZeroDivisionError traceback ended it."""
+    step of its hardening; the cause is open). The run stops as an instability (exit 3, the
+    step, time and ids on one line): it ended in a ZeroDivisionError traceback (F_P turned
+    singular; `test_an_undefined_peridynamic_stress_marks_its_particles`), or in a
+    MemoryError where particles flew off with finite values (the health check's bounds)."""
     scene = tmp_path / "snow_spb.toml"
     scene.write_text(SNOW_SPB)
     proc = hpcmpm("run", str(scene), "--out", str(tmp_path / "out"), "--quiet")
@@ -299,4 +301,39 @@ def test_an_undefined_peridynamic_stress_stops_the_run_as_an_instability(tmp_pat
     assert "Traceback" not in proc.stderr
     (line,) = proc.stderr.strip().splitlines()
     assert line.startswith("hpcmpm: error: numerical instability at step ")
-    assert "the peridynamic stress is undefined (a singular plastic deformation F_P" in line
+
+
+def test_an_undefined_peridynamic_stress_marks_its_particles():
+    """SPB evolution, snow's PD stress F^PD F_P^-1 with one singular F_P: that particle gets
+    a non-finite velocity (the health check then stops the run on every rank alike) and no
+    stress, the others their stress as computed alone, and the material's failure note
+    names the cause."""
+    from types import SimpleNamespace
+
+    from hpcmpm.materials import make_material
+    from hpcmpm.pd.spb import SPBExtension
+    from hpcmpm.scene import MaterialSpec
+
+    snow = make_material(MaterialSpec("s", "snow", 400.0, {
+        "E": 1.4e5, "nu": 0.2, "theta_c": 0.025, "theta_s": 0.0075, "xi": 10.0}), 2)
+    rng = np.random.default_rng(3)
+    n = 4
+    Fp = np.tile(np.eye(2), (n, 1, 1)) + 0.05 * rng.standard_normal((n, 2, 2))
+    Fp[2] = [[1.0, 2.0], [0.5, 1.0]]          # det 0 exactly
+    fields = {"Fp": Fp, "Jp": np.linalg.det(Fp)}
+    F = np.tile(np.eye(2), (n, 1, 1)) + 0.05 * rng.standard_normal((n, 2, 2))
+    with pytest.raises(ZeroDivisionError):
+        snow.pd_stress(fields, F, np.empty((n, 2, 2)))
+    rows = np.array([5, 6, 7, 8])
+    v = np.zeros((10, 2))
+    tau = np.full((n, 2, 2), 7.0)
+    SPBExtension._report_undefined_stress(SimpleNamespace(particles={"v": v}), snow, fields,
+                                          rows, F, tau)
+    assert np.isnan(v[7]).all() and np.isfinite(np.delete(v, 7, axis=0)).all()
+    assert np.all(tau[2] == 0.0)
+    good = [0, 1, 3]
+    alone = np.empty((3, 2, 2))
+    snow.pd_stress({k: a[good] for k, a in fields.items()}, F[good], alone)
+    np.testing.assert_array_equal(tau[good], alone)
+    assert snow.failures == ["the peridynamic stress is undefined (a singular plastic "
+                             "deformation F_P, det F_P = 0)"]
