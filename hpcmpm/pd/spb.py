@@ -190,18 +190,19 @@ class SPBExtension(CheckpointedBonds):
         the particles it cannot be computed for get a non-finite velocity (the next step's
         check reports their ids, step and time) and stress 0 for the rest of this step, the
         others their stress, and the material's failure note names the cause (it was a
-        ZeroDivisionError traceback)."""
-        bad = ~(np.abs(np.linalg.det(fields["Fp"])) > 0.0) if "Fp" in fields else \
-            np.ones(len(rows), dtype=bool)
+        ZeroDivisionError traceback). Each row is evaluated alone by the material's own
+        kernel, so "cannot be computed" is exactly where it divides by zero; this runs once,
+        as the run stops."""
+        bad = np.zeros(len(rows), dtype=bool)
+        for i in range(len(rows)):
+            one = slice(i, i + 1)
+            try:
+                pd_stress(material, {k: v[one] for k, v in fields.items()}, F[one], tau[one])
+            except ZeroDivisionError:
+                bad[i] = True
         if not bad.any():
-            bad[:] = True
-        good = ~bad
+            return
         tau[bad] = 0.0
-        if good.any():
-            part = np.empty((int(good.sum()),) + tau.shape[1:])
-            pd_stress(material, {k: v[good] for k, v in fields.items()},
-                      np.ascontiguousarray(F[good]), part)
-            tau[good] = part
         sim.particles["v"][rows[bad]] = np.nan
         material.failures.append("the peridynamic stress is undefined (a singular plastic "
                                  "deformation F_P, det F_P = 0)")
@@ -411,11 +412,11 @@ class SPBExtension(CheckpointedBonds):
                           if name not in SPB_FIELDS}
                 if "L" in p:            # the step's velocity gradient (artificial viscosity)
                     fields["L"] = p["L"][rows]
+                F = np.ascontiguousarray(self.F[a:e])
                 try:
-                    pd_stress(material, fields, np.ascontiguousarray(self.F[a:e]), tau[a:e])
+                    pd_stress(material, fields, F, tau[a:e])
                 except ZeroDivisionError:
-                    self._report_undefined_stress(sim, material, fields, rows,
-                                                  np.ascontiguousarray(self.F[a:e]), tau[a:e])
+                    self._report_undefined_stress(sim, material, fields, rows, F, tau[a:e])
         correspondence_force_state(self.F, self.Kinv, tau, self.active, n, self.A)
         # An inverted PD family (det F^PD <= 0: a particle left with a few bonds that no
         # longer span the space) carries no PD stress, like a detached one, instead of

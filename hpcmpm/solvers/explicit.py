@@ -41,9 +41,17 @@ class ExplicitIntegrator:
         material's own explicit limit (e.g. viscous: rho dx^2 / (2 d mu_N))."""
         speed += sim.max_wave_speed()
         dt = sim.scene.cfl * sim.dx / speed if speed > 0 else math.inf
-        for material in sim.materials:
-            dt = min(dt, material.dt_limit(sim.dx))
-        for extension in sim.extensions:      # e.g. the PD bound of SPB-MPM's bonds
-            if hasattr(extension, "dt_limit"):
-                dt = min(dt, extension.dt_limit(sim))
-        return dt
+        return min(dt, explicit_limits(sim, sim.materials))
+
+
+def explicit_limits(sim, materials) -> float:
+    """The smallest explicit time step bound of ``materials`` (`Material.dt_limit`: viscous,
+    peridynamic, ...) and of the step extensions (e.g. the PD bound of SPB-MPM's bonds);
+    inf when none binds."""
+    dt = math.inf
+    for material in materials:
+        dt = min(dt, material.dt_limit(sim.dx))
+    for extension in sim.extensions:
+        if hasattr(extension, "dt_limit"):
+            dt = min(dt, extension.dt_limit(sim))
+    return dt
