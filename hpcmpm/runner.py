@@ -498,8 +498,40 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
                          debug_checks=bool(getattr(args, "debug_checks", False)),
                          restart_chain=chain)
     runner_frames = int(meta["frame_index"])
+    if comm.rank == 0 and out_dir.resolve() == ckpt.parent.resolve():
+        later = later_output(out_dir, runner_frames, int(meta["step"]), ckpt, end_time)
+        if later:
+            log.warning("%s", later)
     return execute(sim, options, comm, frame_index=runner_frames, first_frame_written=True,
                    signal_flag=signal_flag, restored=meta)
+
+
+def later_output(out_dir: Path, frame_index: int, step: int, ckpt: Path,
+                 end_time: float) -> str | None:
+    """One line when the folder a restart continues in already holds output from beyond its
+    checkpoint (a restart from an older checkpoint than the newest): those frames and
+    checkpoints are replaced only where the restart writes the same names, so a restart that
+    ends earlier leaves them in the series (`particles.xdmf`, `hpcmpm info`) after its own."""
+    from .io.checkpoint import CKPT_PATTERN
+    from .io.xdmf import FRAME_PATTERN
+
+    frames, ckpts = [], []
+    for path in out_dir.iterdir():
+        if (m := FRAME_PATTERN.match(path.name)) and int(m.group(1)) >= frame_index:
+            frames.append(path.name)
+        elif (m := CKPT_PATTERN.match(path.name)) and int(m.group(1)) > step:
+            ckpts.append(path.name)
+    if not frames and not ckpts:
+        return None
+    what = []
+    if frames:
+        what.append(f"{len(frames)} frame(s) ({min(frames)} .. {max(frames)})")
+    if ckpts:
+        what.append(f"{len(ckpts)} checkpoint(s) ({min(ckpts)} .. {max(ckpts)})")
+    return (f"warning: {out_dir} already holds {' and '.join(what)} from beyond {ckpt.name}: "
+            f"the restart (to t={end_time:g}) replaces the files it writes under the same "
+            f"names; those it does not reach stay in the series, and `hpcmpm info` describes "
+            f"the newest checkpoint. To keep the two apart, restart with --out NEW_FOLDER")
 
 
 def checkpoint_to_restart(path: Path, comm: Communicator) -> Path:

@@ -265,7 +265,8 @@ def check_memory(scene, domain, count: int, exact: bool, body_counts=None) -> Me
 
 def initial_particles(sim) -> MemoryEstimate:
     """Count, check, sample this rank's share, mark prescribed particles, decompose."""
-    from .geometry import count_scene, estimate_count, sample_share, share_bounds
+    from .geometry import (count_overlaps, count_scene, estimate_count, overlap_warning,
+                           sample_share, share_bounds)
 
     scene, domain, p = sim.scene, sim.domain, sim.particles
     # The shapes alone first: a scene far too big is refused before any point is tested
@@ -274,6 +275,10 @@ def initial_particles(sim) -> MemoryEstimate:
     if not any(body.shape == "mesh" for body in scene.bodies):
         check_memory(scene, domain, guess, exact)
     counts = count_scene(scene, domain.rank, domain.size, domain.sum)
+    warning = overlap_warning(scene, count_overlaps(scene, counts.lattices, domain.rank,
+                                                    domain.size, domain.sum))
+    if warning and domain.rank == 0:
+        log.warning("%s", warning)
     estimate = check_memory(scene, domain, counts.total, True,
                             [counts.body_count(b) for b in range(len(scene.bodies))])
     start, stop = share_bounds(counts.total, domain.rank, domain.size)
@@ -344,21 +349,25 @@ VALIDATE_COUNT_LIMIT = 50_000_000
 def validate_report(scene) -> str:
     """The line `hpcmpm validate` prints: particle count and the memory estimate on one rank
     against this machine's available memory (with the rank count that would fit)."""
-    from .geometry import body_lattice, count_scene, estimate_count
+    from .geometry import body_lattice, count_overlaps, count_scene, estimate_count, \
+        overlap_warning
 
     lattice_points = sum(body_lattice(b, scene).size for b in scene.bodies
                          if b.shape != "box")
-    body_counts = None
+    body_counts, warning = None, None
     if lattice_points <= VALIDATE_COUNT_LIMIT:
         counts = count_scene(scene)
         count, exact = counts.total, True
         body_counts = [counts.body_count(b) for b in range(len(scene.bodies))]
+        warning = overlap_warning(scene, count_overlaps(scene, counts.lattices))
     else:
         count, exact = estimate_count(scene)
     estimate = estimate_memory(scene, count, 1, exact, body_counts)
     available = available_memory()
     head = (f"{scene.path}: ok ({'' if exact else 'about '}{counted(count, 'particle')}, "
             f"{counted(len(scene.materials), 'material')}, dim {scene.dim})")
+    if warning:
+        head = f"{head}\n{warning}"
     memory = f"{scene.path}: memory estimate: {estimate.describe()}"
     if available is None:
         return f"{head}\n{memory}"

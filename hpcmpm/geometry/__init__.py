@@ -203,6 +203,69 @@ def count_scene(scene: Scene, rank: int = 0, size: int = 1, reduce_sum=None) -> 
     return SceneCounts(lattices, layer_counts, centroids, offsets)
 
 
+def _lattice_index_range(axis: np.ndarray, origin: float, spacing: float) -> tuple[int, int]:
+    """The global lattice indices ``[k0, k1)`` of one axis of a body's lattice."""
+    if len(axis) == 0:
+        return 0, 0
+    k0 = int(round((axis[0] - origin) / spacing - 0.5))
+    return k0, k0 + len(axis)
+
+
+def count_overlaps(scene: Scene, lattices: list[BodyLattice], rank: int = 0, size: int = 1,
+                   reduce_sum=None) -> list[tuple[int, int, int]]:
+    """Lattice points that two bodies both fill: ``(i, j, n)`` per pair with ``n > 0``.
+
+    Every body samples the one global lattice, so bodies that overlap take the same points
+    twice and their mass counts twice there (two particles at one place, each with the full
+    volume). Only the lattice common to both bounding boxes is tested, in chunks that the
+    ranks share round-robin, then one sum-reduction (collective when ``size > 1``); bodies that
+    touch along a face share no point (the lattices are half-open)."""
+    reduce_sum = reduce_sum or (lambda a: a)
+    spacing = scene.dx / scene.particles_per_cell
+    pairs, boxes = [], []
+    for i in range(len(lattices)):
+        for j in range(i + 1, len(lattices)):
+            ranges = [(max(a0, b0), min(a1, b1)) for (a0, a1), (b0, b1) in zip(
+                (_lattice_index_range(ax, o, spacing)
+                 for ax, o in zip(lattices[i].axes, scene.domain_lo)),
+                (_lattice_index_range(ax, o, spacing)
+                 for ax, o in zip(lattices[j].axes, scene.domain_lo)))]
+            if all(k1 > k0 for k0, k1 in ranges):
+                pairs.append((i, j))
+                boxes.append(BodyLattice([o + (np.arange(k0, k1) + 0.5) * spacing
+                                          for (k0, k1), o in zip(ranges, scene.domain_lo)],
+                                         solid=False))
+    if not pairs:
+        return []
+    counts = np.zeros(len(pairs), dtype=np.int64)
+    chunk = 0  # numbered over all pairs, so the ranks share the work whatever the pair sizes
+    for p, ((i, j), box) in enumerate(zip(pairs, boxes)):
+        if lattices[i].solid and lattices[j].solid:
+            counts[p] = box.size * (rank == 0)  # two boxes: their common box, no test
+            continue
+        for g0 in range(0, box.size, CHUNK):
+            if chunk % size == rank:
+                x = box.points(g0, min(g0 + CHUNK, box.size))
+                both = inside(scene.bodies[i], x, scene.dim) & inside(scene.bodies[j], x,
+                                                                      scene.dim)
+                counts[p] += int(np.count_nonzero(both))
+            chunk += 1
+    counts = reduce_sum(counts)
+    return [(i, j, int(n)) for (i, j), n in zip(pairs, counts) if n > 0]
+
+
+def overlap_warning(scene: Scene, overlaps: list[tuple[int, int, int]]) -> str | None:
+    """The line that reports overlapping bodies, or None."""
+    if not overlaps:
+        return None
+    names = [body.name for body in scene.bodies]
+    what = "; ".join(f"bodies[{i}] ({names[i]!r}) and bodies[{j}] ({names[j]!r}) share "
+                     f"{n:,} lattice point(s)" for i, j, n in overlaps)
+    return (f"{scene.path}: warning: bodies overlap ({what}): each body puts a particle on "
+            f"every lattice point it covers, so the mass and volume there count twice; make "
+            f"the bodies disjoint (touching faces share no point)")
+
+
 def estimate_count(scene: Scene) -> tuple[int, bool]:
     """Particle count from the bodies' shapes alone, without testing any point: exact for
     boxes, volume / spacing^dim for spheres and cylinders, the bounding lattice for meshes.

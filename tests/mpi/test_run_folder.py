@@ -85,6 +85,28 @@ def test_restart_from_the_folder_takes_its_newest_checkpoint(tmp_path, finished)
         assert np.array_equal(got[name], ref[name]), name
 
 
+def test_a_restart_from_an_older_checkpoint_warns_of_the_later_output(tmp_path, finished):
+    """From step 80 (t = 0.4) to t = 0.45 in the run's own folder: frame_000002 (t = 0.5) and
+    ckpt_000000100 lie beyond the checkpoint; the warning names them. From the newest
+    checkpoint there is nothing to warn of."""
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    proc = hpcmpm(2, "restart", str(run / "ckpt_000000080.h5"), "--end-time", str(90 * DT),
+                  "--quiet")
+    warnings = [l for l in proc.stderr.splitlines() if "already holds" in l]
+    assert len(warnings) == 1, proc.stderr  # rank 0 alone
+    assert ("1 frame(s) (frame_000002.h5 .. frame_000002.h5) and 1 checkpoint(s) "
+            "(ckpt_000000100.h5 .. ckpt_000000100.h5) from beyond ckpt_000000080.h5") \
+        in warnings[0]
+    assert "(to t=0.45)" in warnings[0] and "--out NEW_FOLDER" in warnings[0]
+    # What it warned of: the restart's last frame took the name frame_000002 (t = 0.45), the
+    # older run's step 100 is still the newest checkpoint.
+    assert last_frame(run)[1]["time"] == pytest.approx(0.45)
+    assert describe_run(run)[0][-2] == "state:       finished (t = 0.5)"
+    proc = hpcmpm(2, "restart", str(run), "--end-time", str(110 * DT), "--quiet")
+    assert "already holds" not in proc.stderr
+
+
 def test_a_stopped_run_is_told_to_continue_and_continues(tmp_path, finished):
     """Without its last checkpoint the run stands at step 80 (t = 0.4) of its 0.5: info says it
     stopped before its end time and gives the plain restart, which runs it to 0.5."""

@@ -337,3 +337,19 @@ def test_an_undefined_peridynamic_stress_marks_its_particles():
     np.testing.assert_array_equal(tau[good], alone)
     assert snow.failures == ["the peridynamic stress is undefined (a singular plastic "
                              "deformation F_P, det F_P = 0)"]
+
+
+def test_overlapping_bodies_are_reported_by_validate_and_run(tmp_path):
+    # The upper disk moved onto the lower one: both sample the lattice points they share.
+    scene = tmp_path / "overlap.toml"
+    scene.write_text(GOOD.replace("center = [0.75, 0.75]", "center = [0.35, 0.25]")
+                     .replace("end_time = ", "end_time = 0.001 # "))
+    proc = hpcmpm("validate", str(scene))
+    assert proc.returncode == 0, proc.stderr
+    assert (f"{scene}: warning: bodies overlap (bodies[0] ('lower_left') and bodies[1] "
+            f"('upper_right') share ") in proc.stdout
+    proc = hpcmpm("run", str(scene), "--out", str(tmp_path / "out"))
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.count("warning: bodies overlap") == 1
+    # The shipped scene as it is: no such line.
+    assert "overlap" not in hpcmpm("validate", "inputs/disks_2d.toml").stdout

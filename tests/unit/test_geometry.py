@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from hpcmpm.errors import SceneError
-from hpcmpm.geometry import count_scene, estimate_count, sample_body, sample_scene, sample_share
+from hpcmpm.geometry import (count_overlaps, count_scene, estimate_count, overlap_warning,
+                             sample_body, sample_scene, sample_share)
 from hpcmpm.scene import parse_scene
 
 CUBE_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=float)
@@ -324,3 +325,58 @@ def test_shape_estimate_of_3d_bodies_is_within_the_boundary_layer_of_the_count(b
     area = 4 * math.pi * 0.25 ** 2 if "sphere" in body else \
         2 * math.pi * 0.2 * 0.5 + 2 * math.pi * 0.2 ** 2
     assert abs(guess - count_scene(scene).total) <= area / (2 * h * h)
+
+
+def overlaps_of(bodies, dim=2, **kw):
+    scene = parse_scene(scene_text(dim, bodies, **kw), "t.toml")
+    counts = count_scene(scene)
+    return count_overlaps(scene, counts.lattices), scene, counts
+
+
+def test_overlapping_boxes_share_exactly_their_common_lattice():
+    # Spacing 0.025: the common box [0.3, 0.5) x [0.4, 0.6) holds 8 x 8 lattice points.
+    a = 'material = "m"\nshape = "box"\nlower = [0.1, 0.2]\nupper = [0.5, 0.6]'
+    b = 'material = "m"\nshape = "box"\nlower = [0.3, 0.4]\nupper = [0.7, 0.8]'
+    found, scene, _ = overlaps_of([a, b])
+    assert found == [(0, 1, 64)]
+    # Each of those points carries two particles: the sampled set repeats exactly 64 places.
+    x = sample_scene(scene)["x"]
+    assert len(x) - len(np.unique(x, axis=0)) == 64
+    line = overlap_warning(scene, found)
+    assert "bodies[0] ('body0') and bodies[1] ('body1') share 64 lattice point(s)" in line
+    assert line.startswith("t.toml: warning: bodies overlap")
+
+
+def test_touching_bodies_do_not_overlap():
+    left = 'material = "m"\nshape = "box"\nlower = [0.25, 0.25]\nupper = [0.5625, 0.75]'
+    right = 'material = "m"\nshape = "box"\nlower = [0.5625, 0.25]\nupper = [0.75, 0.75]'
+    ball = 'material = "m"\nshape = "sphere"\ncenter = [0.5, 0.875]\nradius = 0.125'
+    found, scene, _ = overlaps_of([left, right, ball], dx=0.25)
+    assert found == [] and overlap_warning(scene, found) is None
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_sphere_inside_a_box_overlaps_by_all_its_points(dim):
+    box = f'material = "m"\nshape = "box"\nlower = {[0.1] * dim}\nupper = {[0.9] * dim}'
+    ball = f'material = "m"\nshape = "sphere"\ncenter = {[0.5] * dim}\nradius = 0.2'
+    found, _, counts = overlaps_of([ball, box], dim=dim, dx=0.1)
+    assert found == [(0, 1, counts.body_count(0))]
+
+
+def test_overlap_count_shared_by_ranks_sums_to_the_one_rank_count():
+    # Chunks of 2^18 points: the common boxes below take 4 (350k + 105k + 105k points at
+    # spacing 1e-3), dealt round-robin over 3 ranks.
+    a = 'material = "m"\nshape = "sphere"\ncenter = [0.4, 0.5]\nradius = 0.35'
+    b = 'material = "m"\nshape = "sphere"\ncenter = [0.6, 0.5]\nradius = 0.35'
+    c = 'material = "m"\nshape = "box"\nlower = [0.0, 0.0]\nupper = [1.0, 0.3]'
+    scene = parse_scene(scene_text(2, [a, b, c], dx=0.01, ppc=10), "t.toml")
+    lattices = count_scene(scene).lattices
+    alone = count_overlaps(scene, lattices)
+    parts = [count_overlaps(scene, lattices, r, 3, reduce_sum=lambda v: v) for r in range(3)]
+    summed = {}
+    for part in parts:
+        for i, j, n in part:
+            summed[(i, j)] = summed.get((i, j), 0) + n
+    assert sorted((i, j, n) for (i, j), n in summed.items()) == alone
+    assert {(i, j) for i, j, _ in alone} == {(0, 1), (0, 2), (1, 2)}
+    assert all(len(p) > 0 for p in parts)  # the work was in fact shared
