@@ -100,7 +100,8 @@ class ImpactMaterial(Material):
         P = sigma cof(F^PD) stays bounded for a family that has nearly collapsed (J sigma
         F^-T with the material's J blew up there: a watermelon run crushed a rind particle
         to rho/rho0 = 12); a family with det F^PD <= 0 carries none. ``fields`` holds the PD
-        rows' state and their stored L."""
+        rows' state and their L (with exclusive coupling the PD family's rate, for q; the
+        state itself advances with that rate too: `SPBExtension._pd_velocity_gradient`)."""
         self.update_stress({**fields, "tau": tau}, 0.0)
         J = fields["J"]
         detF = np.linalg.det(F) if len(F) else np.empty(0)

@@ -167,6 +167,81 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
     return broken
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _spans(M, det, dim):
+    """det M > 0 and M spans the space by the criterion of a detached family's K:
+    det M > DETACHED_RCOND (|M|_F^2 / d)^(d/2) (a bond sum N whose bonds are deformed
+    onto a line or a plane is as degenerate as a K whose bonds are)."""
+    f2 = 0.0
+    for i in range(dim):
+        for j in range(dim):
+            f2 += M[i, j] * M[i, j]
+    return det > 0.0 and det > DETACHED_RCOND * (f2 / dim) ** (0.5 * dim)
+
+
+@njit(cache=True, error_model="numpy")
+def _deformation_sums(x, x0, vol, offsets, slot, status, weight, p, dim, faces, clamp,
+                      ghosts, K, N, Xv, Yv, unused, active):
+    """K = N = 0, then N_p = sum_q w Y (x) X V_q over p's intact bonds at positions ``x``
+    and its clamp ghost bonds (K collects the shape tensor alongside; Xv, Yv (3,) scratch;
+    ``unused`` (m, d, d) and ``active`` only type `_ghost_bonds`' force arguments, which it
+    does not read here)."""
+    K[:, :] = 0.0
+    N[:, :] = 0.0
+    for b in range(offsets[p], offsets[p + 1]):
+        q = slot[b]
+        if status[b] == 0 or q < 0:
+            continue
+        Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, q, dim)
+        wv = weight[b] * vol[q]
+        for i in range(dim):
+            for j in range(dim):
+                K[i, j] += wv * Xv[i] * Xv[j]
+                N[i, j] += wv * Yv[i] * Xv[j]
+    if faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp):
+        _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts, K, N,
+                     unused, unused, active, 0.0, Xv, False)
+
+
+@njit(cache=True, error_model="numpy")
+def correspondence_rate(x_new, x_old, x0, vol, offsets, slot, status, weight, active,
+                        n_owned, dt, faces, clamp, L):
+    """The velocity gradient of each owned point's PD family over a step from positions
+    ``x_old`` to ``x_new`` (owned + halo): L_p = (F_p(x_new) F_p(x_old)^-1 - I) / dt, so that
+    I + dt L_p is the family's exact deformation over the step (F = N K^-1 with the same
+    intact bonds at both ends, ghost bonds included: K cancels, I + dt L = N_new N_old^-1).
+    With x_new - x_old = dt v it is F_dot F^-1 for the velocities v that moved the points,
+    the rate the correspondence force works on: sum_p f_p . v_p = -sum_p V_p P_p : F_dot_p
+    (eq. 4.7 summed by parts). L = 0 where the family carries no PD stress (detached,
+    ``active`` 0, or inverted, det F <= 0: its A is zeroed) or is degenerate at either end
+    (`_spans`: bonds deformed onto a line give a singular increment)."""
+    dim = x_new.shape[1]
+    K = np.empty((dim, dim))
+    N1 = np.empty((dim, dim))
+    N0 = np.empty((dim, dim))
+    N0i = np.empty((dim, dim))
+    Xv = np.empty(3)
+    Yv = np.empty(3)
+    ghosts = ghost_scratch(offsets, faces)
+    for p in range(n_owned):
+        L[p, :, :] = 0.0
+        if active[p] == 0.0:
+            continue
+        _deformation_sums(x_old, x0, vol, offsets, slot, status, weight, p, dim, faces, clamp,
+                          ghosts, K, N0, Xv, Yv, L, active)
+        _deformation_sums(x_new, x0, vol, offsets, slot, status, weight, p, dim, faces, clamp,
+                          ghosts, K, N1, Xv, Yv, L, active)
+        if not (_spans(N0, _invert(N0, N0i, dim), dim) and
+                _spans(N1, _invert(N1, K, dim), dim)):
+            continue
+        for i in range(dim):
+            for j in range(dim):
+                s = 0.0
+                for k in range(dim):
+                    s += N1[i, k] * N0i[k, j]
+                L[p, i, j] = (s - (1.0 if i == j else 0.0)) / dt
+
+
 @njit(cache=True, error_model="numpy")
 def correspondence_force_state(F, Kinv, tau, active, n_owned, A):
     """A_p = P_p K_p^-1 with P = tau F^-T (first Piola-Kirchhoff from the Kirchhoff stress);

@@ -39,7 +39,10 @@ What the engine calls, and when:
      particles keep v^ (as the thesis). In deformation mode "L" (the impact models) G2P
      stored L = C^ and advanced nothing: the re-transfer adds the same increment to L, and
      the materials' state update that follows (F, F_E, s, J, E, plastic return) sees the
-     corrected L, as snow's clamp sees the corrected F in mode "F".
+     corrected L, as snow's clamp sees the corrected F in mode "F". With exclusive coupling
+     the L of a PD particle is then replaced by its PD family's velocity gradient over the
+     step (`_pd_velocity_gradient`): its stress works through the bonds on that rate, not
+     on the grid's.
      Not in the thesis: what the boundaries (walls, colliders, clamps) take from the
      corrected grid velocity reaches every particle in their reach, and a PD particle whose
      stencil holds such a node takes the corrected grid velocity instead of its own (a grid
@@ -74,7 +77,7 @@ from ..state import VECTOR
 from .bonds import Bonds
 from .clamp import LINEAR_INFLUENCE, NO_FACES, clamp_parameters, sticky_faces
 from .correspondence import (correspondence_force_state, correspondence_forces,
-                             correspondence_kinematics)
+                             correspondence_kinematics, correspondence_rate)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
 from .families import family_radius, find_families, half_bonds_per_particle
@@ -153,6 +156,9 @@ class SPBExtension(CheckpointedBonds):
         self.bond_margin = math.inf     # smallest |W - beta W_c| / (beta W_c) (this rank)
         self.halo_builds = 0
         self.inverted = 0           # PD particle-steps with an inverted family (this rank)
+        # SPB materials of deformation mode "L" (shock, j2): their PD particles' state
+        # advances with the PD family's velocity gradient (`_pd_velocity_gradient`).
+        self.mode_l_groups = [g for g, m in zip(self.groups, mats) if m.deformation == "L"]
 
     # -- time step ----------------------------------------------------------------------------
     def _pd_time_step(self, material) -> float:
@@ -242,6 +248,9 @@ class SPBExtension(CheckpointedBonds):
             dv = self._evolve(sim, pd_rows, dt)
         with sim.phase("spb_retransfer"):
             self._retransfer(sim, pd_rows, dv, dt)
+        if self.mode_l_groups and self.exclusive:
+            with sim.phase("pd"):
+                self._pd_velocity_gradient(sim, pd_rows, dt)
 
     def _convert(self, sim, dt: float) -> np.ndarray:
         """Rows of MPM particles of SPB materials in a cell with a flagged corner (eq. 6.10,
@@ -401,6 +410,12 @@ class SPBExtension(CheckpointedBonds):
             self.pts_x, self.pts_x0, self.pts_vol, b.offsets, b.slot, b.status, b.weight,
             self.s0, n, self.F, self.Kinv, self.active, self.clamp_faces, self.clamp)
         tau = np.zeros((n, self.dim, self.dim))
+        # Mode "L" (exclusive): the artificial viscosity of the PD stress from the PD family's
+        # rate over this step's prediction x^n -> x^ (= x^n + dt v^), not from the grid's C^,
+        # as the state update takes it (`_pd_velocity_gradient`): the same q does work on
+        # the bonds and is taken from E.
+        L_pd = self._family_rate(p["x"][pd_rows], p["v"][pd_rows], dt) \
+            if self.mode_l_groups and self.exclusive else None
         for g in self.groups:
             # pd_rows ascend and each material's rows are one slice: its PD rows are too.
             a, e = np.searchsorted(pd_rows, sim.group_slices[g])
@@ -411,7 +426,7 @@ class SPBExtension(CheckpointedBonds):
                 fields = {name: p[name][rows] for name in material.fields
                           if name not in SPB_FIELDS}
                 if "L" in p:            # the step's velocity gradient (artificial viscosity)
-                    fields["L"] = p["L"][rows]
+                    fields["L"] = p["L"][rows] if L_pd is None else L_pd[a:e]
                 F = np.ascontiguousarray(self.F[a:e])
                 try:
                     pd_stress(material, fields, F, tau[a:e])
@@ -504,6 +519,48 @@ class SPBExtension(CheckpointedBonds):
         self.held = len(held)
         # Snow's clamp and the mode-L state updates run next (Simulation.update_states) on
         # the corrected F or L.
+
+    def _pd_velocity_gradient(self, sim, pd_rows, dt: float) -> None:
+        """The velocity gradient L that the state update of a mode-"L" material (shock, j2)
+        reads, for its PD particles: the rate of their PD deformation, L^PD = (F^PD(x^{n+1})
+        F^PD(x^n)^-1 - I) / dt over the intact bonds (`correspondence_rate`), with x^n =
+        x^{n+1} - dt v^{n+1} (every PD particle moved by its final velocity, the held ones
+        too). The PD particle's stress acts through its bonds, whose force works on exactly
+        this rate (sum_p f_p . v_p = -sum_p V_p P_p : F_dot_p, 003 eq. 4.7 / 6.6 summed by
+        parts), so J, F_E and the internal energy E (003 eq. 7.3: de = dt sym(L) : sigma,
+        with the EOS work of eq. 7.4) follow the deformation the bonds resist and E gains
+        the work they do. 003 §7.2.2 evaluates sigma^PD with "the strain tensor ... from
+        F_p^PD in the state-based PD"; the grid's C of a PD particle (what G2P and the
+        re-transfer left in L) is not its deformation under exclusive coupling: nothing on
+        the grid resists it, and a converted shock block on a floor was compressed there to
+        J = 0.47 while its PD families kept det F^PD ~ 1, its pressure and E growing 30 times
+        past the impact's kinetic energy. Exclusive coupling only: under additive coupling
+        (Alg. 3 as printed) the particle's stress works twice, on the grid's L through P2G
+        and on L^PD through its bonds; no one L makes E that work (the sum of both rates,
+        tried, advances J twice for one volume change and blew up), so it keeps the grid's
+        L as before."""
+        p = sim.particles
+        L = self._family_rate(p["x"][pd_rows], p["v"][pd_rows], dt)
+        for g in self.mode_l_groups:
+            a, e = np.searchsorted(pd_rows, sim.group_slices[g])
+            if e > a:
+                p["L"][pd_rows[a:e]] = L[a:e]
+
+    def _family_rate(self, x, v, dt: float) -> np.ndarray:
+        """`correspondence_rate` of the owned PD points (rows of x, v: my PD rows) moved by
+        dt v to x over the bonds as they are now (n, d, d). Collective (the halo's x, v)."""
+        n = len(x)
+        x = np.ascontiguousarray(x)
+        v = np.ascontiguousarray(v)
+        halo = self.halo.refresh({"x": x, "v": v})
+        x_new = np.concatenate([x, halo["x"]])
+        x_old = x_new - dt * np.concatenate([v, halo["v"]])
+        b = self.bonds
+        L = np.zeros((n, self.dim, self.dim))
+        correspondence_rate(x_new, x_old, self.pts_x0, self.pts_vol, b.offsets, b.slot,
+                            b.status, b.weight, self.active, n, dt, self.clamp_faces,
+                            self.clamp, L)
+        return L
 
     # -- checkpoints ----------------------------------------------------------------------------
     # Bonds checkpoint through pd/extension.CheckpointedBonds (beside the particle checkpoint,
