@@ -29,9 +29,11 @@ there xi (1 - J_P) grows without bound; ``max_exponent`` caps the exponent so ex
 overflow. Its default, |xi|, never binds for hardening (xi > 0 gives xi (1 - J_P) < xi for any
 J_P > 0) and for softening bounds the stiffening by the same factor exp(|xi|).
 
-`wave_speed` reports the rest value sqrt((lam0 + 2 mu0)/rho): it must not depend on particle
-state, since every rank must compute the same CFL bound. Hardening raises the true speed by
-sqrt(h) <= exp(max_exponent / 2); lower simulation.cfl accordingly for strongly hardened snow.
+`wave_speed` reports the rest value sqrt((lam0 + 2 mu0)/rho); `max_wave_speed`, which the
+explicit time step reads (a maximum over the ranks), the hardened one: hardening multiplies both
+moduli by h, so the P-wave speed by sqrt(h), up to exp(max_exponent / 2). With the rest value
+alone, a block of snow (xi = 10) compacted by an impact reached h = 54 within 17 steps, a
+Courant number c dt / dx of 1.2, and blew up.
 """
 
 from __future__ import annotations
@@ -60,6 +62,16 @@ def _clamp(s, lo, hi):
 def hardening(Jp, xi, max_exponent):
     """h = exp(min(xi (1 - Jp), max_exponent)), the factor on mu0 and lam0 (000 §4.5)."""
     return math.exp(min(xi * (1.0 - Jp), max_exponent))
+
+
+@njit(cache=True)
+def largest_hardening(Jp, xi, max_exponent):
+    """max(1, max_p h(Jp_p)): the factor on the rest moduli that bounds the wave speed (a
+    softened particle is not taken below the rest value)."""
+    top = 1.0
+    for p in range(Jp.shape[0]):
+        top = max(top, hardening(Jp[p], xi, max_exponent))
+    return top
 
 
 @njit(cache=True)
@@ -216,6 +228,12 @@ class Snow(ImplicitF, Material):
     def hardening(self, Jp: float) -> float:
         """The factor h(Jp) on mu0 and lam0."""
         return float(hardening(Jp, self.xi, self.max_exponent))
+
+    def max_wave_speed(self, fields) -> float:
+        """The P-wave speed at the largest hardening of these particles, sqrt(h) times the
+        rest value (000 §4.5: mu = mu0 h, lam = lam0 h)."""
+        return self.wave_speed() * math.sqrt(
+            largest_hardening(np.ascontiguousarray(fields["Jp"]), self.xi, self.max_exponent))
 
     def return_map(self, fields, dt: float) -> None:
         """Projects fields["F"] (n, d, d, the trial F_E G2P advanced) onto the clamp and

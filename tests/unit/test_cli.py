@@ -291,10 +291,10 @@ def test_a_blown_up_snow_spb_run_stops_as_an_instability(tmp_path):
     """Snow (xi = 10) whose particles all turn peridynamic (SPB) blows up at impact in this
     coarse scene (J_P < 0 within a few steps of landing, at cfl 0.1 too): its PD stress is at
     F^PD F_P^-1 while F_P takes the grid's compression of the PD particles, which nothing on
-    the grid resists under exclusive coupling, and its hardening outruns the rest-speed time
-    step (docs/studies.md, "SPB snow blow-up"). The run stops as an instability (exit 3, the
-    step, time and ids on one line): it ended in a ZeroDivisionError traceback (F_P turned
-    singular; `test_an_undefined_peridynamic_stress_marks_its_particles`), or in a
+    the grid resists under exclusive coupling (docs/studies.md, "SPB snow blow-up"; the
+    hardened wave speed in the time step only delays it). The run stops as an instability
+    (exit 3, the step, time and ids on one line): it ended in a ZeroDivisionError traceback
+    (F_P turned singular; `test_an_undefined_peridynamic_stress_marks_its_particles`), or in a
     MemoryError where particles flew off with finite values (the health check's bounds)."""
     scene = tmp_path / "snow_spb.toml"
     scene.write_text(SNOW_SPB)

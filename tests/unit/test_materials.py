@@ -380,6 +380,24 @@ def test_snow_hardening_scales_moduli(dim):
 
 
 @pytest.mark.parametrize("dim", DIMS)
+def test_snow_wave_speed_follows_the_hardening(dim):
+    """The explicit bound reads the hardened P-wave speed: mu and lam both scale by h, so
+    the speed by sqrt(h) exactly; a softened particle does not lower it below the rest
+    value, and the cap max_exponent bounds it."""
+    mat = snow(dim)
+    rest = mat.wave_speed()
+    assert rest == pytest.approx(math.sqrt((mat.lam + 2 * mat.mu) / mat.density), rel=1e-15)
+    Jp = np.array([1.0, 0.9, 0.97])  # the most compacted particle decides: h = e^(10 * 0.1)
+    assert mat.max_wave_speed({"Jp": Jp}) == pytest.approx(rest * math.exp(0.5), rel=1e-14)
+    assert mat.max_wave_speed({"Jp": np.array([1.0, 1.3])}) == rest  # softened by extension
+    assert mat.max_wave_speed({"Jp": np.empty(0)}) == rest
+    soft = snow(dim, xi=-10.0, max_exponent=2.0)
+    assert soft.max_wave_speed({"Jp": np.array([0.5])}) == soft.wave_speed()
+    assert soft.max_wave_speed({"Jp": np.array([5.0])}) == pytest.approx(
+        soft.wave_speed() * math.exp(1.0), rel=1e-14)
+
+
+@pytest.mark.parametrize("dim", DIMS)
 def test_snow_softening(dim):
     """000 §4.5.2: with xi < 0, plastic compression (J_P falling below 1) lowers mu and lam,
     towards exp(xi) > 0, never to zero; plastic extension stiffens, capped by max_exponent."""
