@@ -35,6 +35,14 @@ GHOST_BELOW, GHOST_ABOVE = 1, 2
 NEIGHBOUR_REACH = 3
 
 
+def image_steps(n_cells: int) -> tuple[int, ...]:
+    """The periodic images, in periods, along an axis of ``n_cells`` cells: 0, -1, +1, ...,
+    -k, +k with k = ceil(NEIGHBOUR_REACH / n_cells) (at least 1), the images whose cells
+    lie within NEIGHBOUR_REACH of the domain [0, n)."""
+    k = max(1, -(-NEIGHBOUR_REACH // int(n_cells)))
+    return (0, *[s for j in range(1, k + 1) for s in (-j, j)])
+
+
 def _max_then_sum(inbuf, inoutbuf, datatype) -> None:
     """MPI reduction of float64 vectors ``[k, max_1 .. max_k, sum_1 ..]``: elementwise max of
     the first k + 1 entries, sum of the rest. Counts are integers below 2**53: exact."""
@@ -111,10 +119,13 @@ class Domain(Communicator):
         self._any_periodic = bool(self.periodic.any())   # tested every step (`wrap`)
         # Period in cells per axis, 0 where the axis is not periodic (the wrap kernel's input).
         self.period = np.where(self.periodic, self.n_cells, 0).astype(np.int64)
-        # Image offsets in cells: every combination of -1, 0, +1 periods over the periodic
-        # axes, zero first. Supports and halos never reach past one period (a wrapped
-        # particle's support is nodes -1 .. n + 1), so these images are all there are.
-        steps = [(0, -1, 1) if p else (0,) for p in self.periodic]
+        # Image offsets in cells: every combination of 0, -1, +1, ..., -k, +k periods over the
+        # periodic axes, zero first. A rank's supports and neighbours lie within
+        # NEIGHBOUR_REACH cells of its box, so an image k periods away matters while
+        # (k - 1) n < NEIGHBOUR_REACH: k = 1 from 3 cells up, more on a narrower axis (on one
+        # cell a wrapped particle's support, nodes -1 .. 2, is node 0 four times; with one
+        # image each way node 2 was lost, and a 1-cell channel drove a cross-flow).
+        steps = [image_steps(n) if p else (0,) for p, n in zip(self.periodic, self.n_cells)]
         self.shifts = np.array(list(itertools.product(*steps)), dtype=np.int64) * self.period
         self._plan: GridPlan | None = None
         self._boxes_plan: GridPlan | None = None

@@ -13,16 +13,19 @@ from hpcmpm.scene import parse_scene
 from mpi_helpers import (block_grid, cloud, deposit, gather_by_id, particle_set, reference_grid,
                          strided_share)
 
-# (dim, dx, particles, periodic axes): 2D periodic in x only (y has walls), 3D in x and z.
-CASES = ((2, 1.0 / 16, 1500, (0,)), (3, 1.0 / 8, 800, (0, 2)))
+# (dim, dx, particles, periodic axes, domain upper corner): 2D periodic in x only (y has
+# walls), 3D in x and z; then periodic axes narrower than a particle's support (nodes -1 ..
+# n + 1): one cell, where that support is node 0 four times, and two cells (3D: 2 in x, 1 in z).
+CASES = ((2, 1.0 / 16, 1500, (0,), (1.0, 1.0)), (3, 1.0 / 8, 800, (0, 2), (1.0, 1.0, 1.0)),
+         (2, 1.0 / 16, 600, (0,), (1.0 / 16, 1.0)), (3, 1.0 / 8, 500, (0, 2), (0.25, 1.0, 0.125)))
 
 
-def periodic_cloud(dim, n, seed, periodic):
-    """A cloud slightly wider than the domain on the wall axes and wrapped into [0, 1) on the
-    periodic ones, so nodes beyond every face are in somebody's support."""
+def periodic_cloud(dim, n, seed, periodic, upper):
+    """A cloud slightly wider than the unit box on the wall axes and wrapped into [0, upper)
+    on the periodic ones, so nodes beyond every face are in somebody's support."""
     values = cloud(dim, n, seed=seed, lo=-0.02, hi=1.02)
     for a in periodic:
-        values["x"][:, a] = np.mod(values["x"][:, a], 1.0)
+        values["x"][:, a] = np.mod(values["x"][:, a], upper[a])
     return values
 
 
@@ -53,9 +56,9 @@ def on_block(field, origin, grid, periodic, n_cells):
 
 @pytest.mark.parallel(ranks=[1, 2, 4])
 def test_periodic_sum_then_fill_equals_wrapped_one_process():
-    for dim, dx, n, periodic in CASES:
-        domain = Domain(dim, dx, np.zeros(dim), np.ones(dim), periodic=periodic)
-        values = periodic_cloud(dim, n, 40 + dim, periodic)
+    for dim, dx, n, periodic, upper in CASES:
+        domain = Domain(dim, dx, np.zeros(dim), upper, periodic=periodic)
+        values = periodic_cloud(dim, n, 40 + dim, periodic, upper)
         p = particle_set(dim, values, strided_share(values, domain))
         domain.decompose(p)
         for a in periodic:  # the boxes tile [0, n) exactly on a periodic axis
