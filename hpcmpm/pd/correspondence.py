@@ -67,6 +67,16 @@ def _invert(M, out, dim):
     return det
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _add_bond(K, N, wv, X, Y, dim):
+    """K += wv X (x) X and N += wv Y (x) X: one bond's term of the shape tensor and of the
+    deformed-bond sum (F = N K^-1), shared by the intact and the clamp ghost bonds."""
+    for i in range(dim):
+        for j in range(dim):
+            K[i, j] += wv * X[i] * X[j]
+            N[i, j] += wv * Y[i] * X[j]
+
+
 @njit(cache=True, error_model="numpy")
 def _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts, K, N,
                  A, F, active, G, acc, forces):
@@ -82,11 +92,7 @@ def _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts
             q = GQ[g]
             w = GW[g]
             if not forces:
-                wv = w * vol[q]
-                for i in range(dim):
-                    for j in range(dim):
-                        K[i, j] += wv * GX[g, i] * GX[g, j]
-                        N[i, j] += wv * GY[g, i] * GX[g, j]
+                _add_bond(K, N, w * vol[q], GX[g], GY[g], dim)
                 continue
             vv = vol[p] * vol[q]
             gs = G * w / norm3(GX[g, 0], GX[g, 1], GX[g, 2])
@@ -137,11 +143,7 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
                 status[b] = 0
                 broken += 1
                 continue
-            wv = weight[b] * vol[q]
-            for i in range(dim):
-                for j in range(dim):
-                    K[i, j] += wv * Xv[i] * Xv[j]
-                    N[i, j] += wv * Yv[i] * Xv[j]
+            _add_bond(K, N, weight[b] * vol[q], Xv, Yv, dim)
         if faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp):
             _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts, K, N,
                          F, F, active, 0.0, Xv, False)     # A, acc unused
@@ -193,11 +195,7 @@ def _deformation_sums(x, x0, vol, offsets, slot, status, weight, p, dim, faces, 
         if status[b] == 0 or q < 0:
             continue
         Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, q, dim)
-        wv = weight[b] * vol[q]
-        for i in range(dim):
-            for j in range(dim):
-                K[i, j] += wv * Xv[i] * Xv[j]
-                N[i, j] += wv * Yv[i] * Xv[j]
+        _add_bond(K, N, weight[b] * vol[q], Xv, Yv, dim)
     if faces.shape[0] > 0 and near_a_face(x0, p, faces, clamp):
         _ghost_bonds(x, x0, vol, offsets, slot, status, p, faces, clamp, dim, ghosts, K, N,
                      unused, unused, active, 0.0, Xv, False)
