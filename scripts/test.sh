@@ -36,6 +36,10 @@ if [ $# -eq 0 ] && [ "${HPCMPM_SKIP_MPIO:-0}" != 1 ]; then
     # A failed suite ends this script (set -e): stop the build with it.
     trap 'kill -- -"$mpio_pid" 2>/dev/null || true' EXIT
 fi
+# The whole suite runs the single-process tests first: on a fresh clone they compile the numba
+# kernels into the shared cache one process at a time, where the MPI tests (first in pytest's
+# own order) had every rank of a launch compile the same kernels at once.
+[ $# -gt 0 ] || set -- tests/unit tests/verification tests/mpi
 # -rs (also in pyproject's addopts): every skipped test is listed with its reason.
 (. scripts/env.sh && python -m pytest -q -rs "$@")
 [ "$mpio" = 1 ] || exit 0
