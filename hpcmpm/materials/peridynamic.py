@@ -160,22 +160,6 @@ class Peridynamic(Material):
             out.append(f"horizon_length: {prm['horizon_length']:g} is below one particle "
                        f"spacing {spacing:g} (simulation.dx / particles_per_cell)")
         lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
-        # Bonds across a periodic face go to the nearest image of the partner (bonds.py
-        # `resolve_slots`), which is the partner itself only while the period exceeds twice
-        # the family radius; on a narrower axis a particle's family holds two images of one
-        # partner and both bonds resolve to the same one (measured: an LPS strip 1 cell wide,
-        # horizon 3.015 spacings, stopped as a numerical instability at step 1).
-        key = "horizon_length" if prm["horizon_length"] is not None else "horizon"
-        delta = prm["horizon_length"] if key == "horizon_length" else prm["horizon"] * spacing
-        radius = family_radius(delta, spacing, prm["partial_volumes"])
-        for axis in getattr(scene, "periodic", ()) or ():
-            period = float(hi[axis] - lo[axis])
-            if period <= 2.0 * radius:
-                out.append(f"{key}: the family radius {radius:g} is at least half the period "
-                           f"{period:g} of the periodic axis {'xyz'[axis]}: a particle would "
-                           f"bond to two images of one partner (the domain must be wider "
-                           f"than {2.0 * radius:g} along {'xyz'[axis]}, or the horizon "
-                           f"shorter)")
         for k, c in enumerate(prm["precracks"] or ()):
             c = np.asarray(c, dtype=np.float64)
             if c.shape[1] != dim or (dim == 2 and len(c) != 2) or (dim == 3 and len(c) < 3):

@@ -301,23 +301,3 @@ upper = [0.4, 0.43]
         f"hpcmpm: error: {path}: materials[0]: 15 particle(s) of material 'glass' lie where "
         f"another of its particles lies (bodies that overlap): a peridynamic bond needs two "
         f"distinct places; make its bodies disjoint or merge them into one")
-
-
-@pytest.mark.parametrize("key,value,radius", [("horizon_length", 0.6, 0.605),
-                                              ("horizon", 60.0, 0.605)])
-def test_a_family_wider_than_half_a_periodic_axis_is_refused(tmp_path, capsys, key, value,
-                                                             radius):
-    """Periodic x of period 1: a family radius (horizon plus half a spacing, 0.005) of 0.605
-    would hold two images of one partner, which the bonds resolve to one (one line, exit 2);
-    a radius of 0.495 is accepted."""
-    periodic = PLATE.replace("cfl = 0.4", 'cfl = 0.4\nperiodic = ["x"]')
-    path = tmp_path / "plate.toml"
-    path.write_text(periodic.replace('model = "pmb"', f'model = "pmb"\n{key} = {value}'))
-    assert cli.main(["validate", str(path)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"hpcmpm: error: {path}: materials[0].{key}: the family radius {radius:g} "
-                   "is at least half the period 1 of the periodic axis x: a particle would "
-                   "bond to two images of one partner (the domain must be wider than "
-                   f"{2 * radius:g} along x, or the horizon shorter)"]
-    path.write_text(periodic.replace('model = "pmb"', 'model = "pmb"\nhorizon_length = 0.49'))
-    assert cli.main(["validate", str(path)]) == 0
