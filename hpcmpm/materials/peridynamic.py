@@ -160,6 +160,19 @@ class Peridynamic(Material):
             out.append(f"horizon_length: {prm['horizon_length']:g} is below one particle "
                        f"spacing {spacing:g} (simulation.dx / particles_per_cell)")
         lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
+        # A period within the family radius puts a particle's own images in its family:
+        # bonds of zero reference length once resolved (an LPS strip 1 cell wide, horizon
+        # 3.015 spacings: 2 such bonds per particle, a numerical instability at step 1).
+        key = "horizon_length" if prm["horizon_length"] is not None else "horizon"
+        delta = prm["horizon_length"] if key == "horizon_length" else prm["horizon"] * spacing
+        radius = family_radius(delta, spacing, prm["partial_volumes"])
+        for axis in getattr(scene, "periodic", ()) or ():
+            period = float(hi[axis] - lo[axis])
+            if period <= radius:
+                out.append(f"{key}: the family radius {radius:g} reaches across the period "
+                           f"{period:g} of the periodic axis {'xyz'[axis]}: a particle would "
+                           f"bond to its own image (the domain must be wider than "
+                           f"{radius:g} along {'xyz'[axis]}, or the horizon shorter)")
         for k, c in enumerate(prm["precracks"] or ()):
             c = np.asarray(c, dtype=np.float64)
             if c.shape[1] != dim or (dim == 2 and len(c) != 2) or (dim == 3 and len(c) < 3):

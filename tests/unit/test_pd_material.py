@@ -301,3 +301,22 @@ upper = [0.4, 0.43]
         f"hpcmpm: error: {path}: materials[0]: 15 particle(s) of material 'glass' lie where "
         f"another of its particles lies (bodies that overlap): a peridynamic bond needs two "
         f"distinct places; make its bodies disjoint or merge them into one")
+
+
+@pytest.mark.parametrize("key,value", [("horizon_length", 1.0), ("horizon", 100.0)])
+def test_a_family_reaching_across_a_periodic_axis_is_refused(tmp_path, capsys, key, value):
+    """Periodic x of period 1: a family radius (horizon plus half a spacing, 0.005) of 1.005
+    holds the particle's own image, a bond of zero reference length (one line, exit 2); a
+    radius of 0.995 is accepted (tests/verification/test_pd_ibmpm_bar.py runs PD bars with
+    radii between half the period and the period)."""
+    periodic = PLATE.replace("cfl = 0.4", 'cfl = 0.4\nperiodic = ["x"]')
+    path = tmp_path / "plate.toml"
+    path.write_text(periodic.replace('model = "pmb"', f'model = "pmb"\n{key} = {value}'))
+    assert cli.main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"hpcmpm: error: {path}: materials[0].{key}: the family radius 1.005 "
+                   "reaches across the period 1 of the periodic axis x: a particle would bond "
+                   "to its own image (the domain must be wider than 1.005 along x, or the "
+                   "horizon shorter)"]
+    path.write_text(periodic.replace('model = "pmb"', 'model = "pmb"\nhorizon_length = 0.99'))
+    assert cli.main(["validate", str(path)]) == 0
