@@ -38,7 +38,7 @@ import numpy as np
 from ..pd.clamp import (NO_CLAMP, NO_FACES, clamp_parameters, faces_within_reach,
                         share_within_reach, sticky_faces)
 from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, family_radius, full_family_sum,
-                           half_bonds_per_particle, influence_code)
+                           half_bonds_per_particle, horizon_length, influence_code)
 from ..pd import moduli
 from ..pd.load import ACTIVE_BONDS
 from ..state import SCALAR, VECTOR, FieldSpec
@@ -164,8 +164,8 @@ class Peridynamic(Material):
         # bonds of zero reference length once resolved (an LPS strip 1 cell wide, horizon
         # 3.015 spacings: 2 such bonds per particle, a numerical instability at step 1).
         key = "horizon_length" if prm["horizon_length"] is not None else "horizon"
-        delta = prm["horizon_length"] if key == "horizon_length" else prm["horizon"] * spacing
-        radius = family_radius(delta, spacing, prm["partial_volumes"])
+        radius = family_radius(horizon_length(spacing, prm["horizon"], prm["horizon_length"]),
+                               spacing, prm["partial_volumes"])
         for axis in getattr(scene, "periodic", ()) or ():
             period = float(hi[axis] - lo[axis])
             if period <= radius:
@@ -203,8 +203,7 @@ class Peridynamic(Material):
     def configure(self, scene) -> None:
         prm = self.params
         self.spacing = scene.dx / scene.particles_per_cell
-        self.delta = prm["horizon_length"] if prm["horizon_length"] is not None else \
-            prm["horizon"] * self.spacing
+        self.delta = horizon_length(self.spacing, prm["horizon"], prm["horizon_length"])
         if prm["model"] == "correspondence":
             from . import make_material
 
