@@ -513,7 +513,8 @@ def _output(c: Checker, raw: dict, end_time) -> OutputSpec:
 
 
 def _check_with_material_instances(c: Checker, materials, materials_complete: bool, transfer,
-                                   integrator, dim, volume_averaging) -> None:
+                                   integrator, dim, volume_averaging, periods=(),
+                                   spacing=None) -> None:
     """The checks that need the materials made as the run makes them: SPB-MPM's
     combinations and ``volume_averaging`` with a material whose J it averages."""
     from .materials import make_material
@@ -536,7 +537,7 @@ def _check_with_material_instances(c: Checker, materials, materials_complete: bo
     if len(instances) < len(materials):
         return
     # SPB-MPM: combinations it cannot run (the transfer, the integrator, shared keys).
-    for key, what in failure_scene_problems(instances, transfer, integrator):
+    for key, what in failure_scene_problems(instances, transfer, integrator, periods, spacing):
         c.problem(key, what)
     mode = deformation_mode(instances, INTEGRATORS[integrator].needs_velocity_gradient)
     if volume_averaging not in (None, "none") and not any(m.on_grid and m.averages_volume(mode)
@@ -547,6 +548,14 @@ def _check_with_material_instances(c: Checker, materials, materials_complete: bo
                   "material with the explicit integrator); no material of this scene carries "
                   "one")
 
+
+
+def _periods(sim: dict) -> list[tuple[int, float]]:
+    """(axis, period) of each periodic axis of a checked [simulation] table."""
+    lo, hi = sim["domain_lo"], sim["domain_hi"]
+    if lo is None or hi is None:
+        return []
+    return [(a, float(hi[a] - lo[a])) for a in sim["periodic"] or ()]
 
 
 def _check_output_fields(c: Checker, scene: Scene) -> None:
@@ -904,7 +913,9 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     _check_with_material_instances(c, materials,
                                    isinstance(entries, list) and len(entries) == len(materials),
                                    sim["transfer"], sim["integrator"], sim["dim"],
-                                   sim["volume_averaging"])
+                                   sim["volume_averaging"], _periods(sim),
+                                   sim["dx"] / sim["particles_per_cell"]
+                                   if sim["dx"] and sim["particles_per_cell"] else None)
     if c.problems:
         raise SceneError(c.problems)
     _resolve_mesh_paths(raw, bodies)

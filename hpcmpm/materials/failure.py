@@ -91,12 +91,16 @@ SHARED_KEYS = ("coupling", "bond_failure", "critical_stretch", "influence", "hor
                "max_bond_stretch", "clamp")
 
 
-def failure_scene_problems(materials, transfer: str, integrator: str) -> list[tuple[str, str]]:
+def failure_scene_problems(materials, transfer: str, integrator: str, periods=(),
+                           spacing: float | None = None) -> list[tuple[str, str]]:
     """(key path, what is wrong) for each combination SPB-MPM cannot run, given the
     material instances of a scene: MLS transfer (the re-transfer recomputes C as the
     velocity gradient), the explicit integrator (Alg. 3 is an explicit step), a Young's
-    modulus where eq. 6.10's tensile energy divides by it, and the keys the SPB materials
-    share. Deformation modes "F" and "L" both work: in mode "L" the re-transfer corrects
+    modulus where eq. 6.10's tensile energy divides by it, the keys the SPB materials
+    share, and (``periods``: (axis, period) of the periodic axes; ``spacing``: the particle
+    spacing) a family radius that reaches half a period: a converted particle's family
+    would then hold two images of one partner, which the conversions' bond search does not
+    build (pd/spb.py; a peridynamic material's families do). Deformation modes "F" and "L" both work: in mode "L" the re-transfer corrects
     the stored L before the materials' state update, and eq. 6.10 divides tau by the
     material's own volume ratio J where it carries no F (`shock`, `j2`)."""
     groups = [g for g, m in enumerate(materials) if getattr(m, "failure", None)]
@@ -123,6 +127,19 @@ def failure_scene_problems(materials, transfer: str, integrator: str) -> list[tu
             problems.append((f"{first}.{key}", f"SPB materials "
                                                f"{', '.join(map(repr, names))} must agree, "
                                                f"got {', '.join(sorted(values))}"))
+    if spacing:
+        from ..pd.families import family_radius
+
+        radius = family_radius(specs[0]["horizon"] * spacing, spacing, True)
+        for axis, period in periods:
+            if 2.0 * radius >= period:
+                name = "xyz"[axis]
+                problems.append((f"{first}.horizon", f"the family radius {radius:g} reaches "
+                                 f"half the period {period:g} of the periodic axis {name}: a "
+                                 f"converted particle would bond to two images of one "
+                                 f"partner, which SPB-MPM does not build (the domain must be "
+                                 f"wider than {2.0 * radius:g} along {name}, or the horizon "
+                                 f"shorter)"))
     return problems
 
 

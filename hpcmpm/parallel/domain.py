@@ -205,6 +205,10 @@ class Domain(Communicator):
             self._graph = self.mpi.Create_dist_graph_adjacent(nbrs, nbrs, reorder=False)
         return self._graph
 
+    def period_lengths(self) -> np.ndarray:
+        """The period of each axis as a length, 0 where the axis is not periodic."""
+        return self.period * self.dx
+
     def wrap(self, x: np.ndarray) -> int:
         """Wrap positions x (n, dim) into the domain along the periodic axes, in place
         (``x <- lo + (x - lo) mod L``); returns how many coordinates moved. Nothing to do

@@ -17,23 +17,59 @@ weight     float64  omega(|X|) * beta: influence function times the partial-volu
 slot       int32    local row of the partner in the (owned + halo) point arrays; rebuilt
                     with the halo plan, -1 when unresolved (allowed for broken bonds only)
 status     int8     1 intact, 0 broken (irreversible, 003 eq. 4.8)
+image      int8     which periodic image of the partner (`image_label` of the reference
+                    bond; 0 for the minimum image, and so without periodic axes)
 =========  =======  ==================================================================
 
-21 B in all, plus 8 B per optional per-bond float64 state array (`state`, e.g. a plastic
+22 B in all, plus 8 B per optional per-bond float64 state array (`state`, e.g. a plastic
 bond stretch or a viscous force for the models that need them) and 8 B per particle for
 ``offsets``. The reference bond ``X`` is not stored: it is ``x0[slot] - x0[i]`` from the
 reference positions that the halo carries anyway (correspondence needs the vector), and both
 ends recompute it bit-identically (negating a difference is exact).
+
+Periodic images. Along a periodic axis of period P a family of radius r < P can hold two
+images of one partner (a reference offset d and d - P, both shorter than r, once r > P/2):
+two half-bonds with one partner id, told apart by ``image``, a label of the reference bond
+vector X that reference positions following their particle by whole periods leave unchanged
+(`image_label`). A segment is ordered by (partner, image), and `resolve_slots` gives each
+such half-bond the halo copy with its label; a partner bonded once takes its nearest copy.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
 
 INTACT, BROKEN = np.int8(1), np.int8(0)
-# The arrays every half-bond has, in the order segments are packed for migration/checkpoints.
+# The arrays every half-bond has, in the order segments are packed for migration/checkpoints
+# (``image`` too; where a caller has none to give, as for an SPB conversion, it is 0).
 CORE_BOND_FIELDS = ("partner", "weight", "status")
+# A reference offset of exactly half a period (a lattice with an even number of rows across
+# it) has two images at equal length; the bias puts +P/2 and -P/2 in different labels
+# whatever the round-off of the positions (1e-6 of a period: far below the 1/(2N) by which
+# a lattice of N rows across a period can come near the edge, far above round-off).
+_LABEL_BIAS = 1e-6
+
+
+@njit(cache=True, error_model="numpy")
+def image_label(X, period):
+    """The periodic image a reference bond vector ``X`` (d,) reaches, as one small integer:
+    per periodic axis n_a = floor(X_a / P_a + 1/2 + bias) in {-1, 0, 1} for |X_a| < P_a (the
+    family radius is below the period), coded sum_a (n_a mod 3) 3^a, so the minimum image
+    (every |X_a| below half the period) is 0, the label of a half-bond made without one;
+    axes with P_a = 0 count 0. Two images of one partner differ by a whole period along
+    some axis, so their labels differ; X itself, and so the label, does not change when a
+    particle's reference position follows it across a periodic face by a whole period."""
+    code = 0
+    scale = 1
+    for a in range(len(X)):
+        if period[a] > 0.0:
+            n = math.floor(X[a] / period[a] + 0.5 + _LABEL_BIAS)
+            code += (min(max(n, -1), 1) % 3) * scale
+        scale *= 3
+    return code
 
 
 class Bonds:
@@ -47,9 +83,11 @@ class Bonds:
     status : (nb,) int8, 1 intact / 0 broken (default all intact).
     slot : (nb,) int32 local partner rows (default -1: resolve with `resolve_slots`).
     state : optional dict of per-bond float64 arrays (nb,).
+    image : (nb,) int8 periodic image labels (`image_label`; default 0).
     """
 
-    def __init__(self, offsets, partner, weight, status=None, slot=None, state=None):
+    def __init__(self, offsets, partner, weight, status=None, slot=None, state=None,
+                 image=None):
         self.offsets = np.ascontiguousarray(offsets, dtype=np.int64)
         self.partner = np.ascontiguousarray(partner, dtype=np.int64)
         self.weight = np.ascontiguousarray(weight, dtype=np.float64)
@@ -58,9 +96,12 @@ class Bonds:
                        else np.ascontiguousarray(status, dtype=np.int8))
         self.slot = (np.full(nb, -1, dtype=np.int32) if slot is None
                      else np.ascontiguousarray(slot, dtype=np.int32))
+        self.image = (np.zeros(nb, dtype=np.int8) if image is None
+                      else np.ascontiguousarray(image, dtype=np.int8))
         self.state: dict[str, np.ndarray] = {
             k: np.ascontiguousarray(v, dtype=np.float64) for k, v in (state or {}).items()}
-        if self.offsets[-1] != nb or len(self.weight) != nb or len(self.status) != nb:
+        if self.offsets[-1] != nb or len(self.weight) != nb or len(self.status) != nb \
+                or len(self.image) != nb:
             raise ValueError("bond arrays disagree with offsets")
 
     # -- size ---------------------------------------------------------------------------------
@@ -86,11 +127,12 @@ class Bonds:
 
     def resident_bytes_per_bond(self) -> int:
         return (self.partner.itemsize + self.weight.itemsize + self.slot.itemsize
-                + self.status.itemsize + sum(a.itemsize for a in self.state.values()))
+                + self.status.itemsize + self.image.itemsize
+                + sum(a.itemsize for a in self.state.values()))
 
     def nbytes(self) -> int:
         return (self.offsets.nbytes + self.partner.nbytes + self.weight.nbytes
-                + self.slot.nbytes + self.status.nbytes
+                + self.slot.nbytes + self.status.nbytes + self.image.nbytes
                 + sum(a.nbytes for a in self.state.values()))
 
     def add_state(self, name: str, fill: float = 0.0) -> np.ndarray:
@@ -102,7 +144,7 @@ class Bonds:
     # -- segments: migration, checkpoints, reordering, SPB conversion --------------------------
     def _arrays(self) -> dict[str, np.ndarray]:
         out = {"partner": self.partner, "weight": self.weight, "status": self.status,
-               "slot": self.slot}
+               "image": self.image, "slot": self.slot}
         out.update({"state." + k: v for k, v in self.state.items()})
         return out
 
@@ -161,7 +203,7 @@ class Bonds:
             return
         status = np.ones(m, np.int8) if status is None else np.asarray(status, np.int8)
         new = {"partner": partner, "weight": np.asarray(weight, np.float64), "status": status,
-               "slot": np.full(m, -1, np.int32)}
+               "image": np.zeros(m, np.int8), "slot": np.full(m, -1, np.int32)}
         new.update({"state." + k: np.zeros(m) for k in self.state})
         # The segments are ordered already: sort the new half-bonds alone and merge them in,
         # O(bonds + m log m) where sorting everything cost a lexsort of all the bonds at each
@@ -182,18 +224,24 @@ class Bonds:
             setattr(self, name, np.ascontiguousarray(arr))
 
     # -- halo ---------------------------------------------------------------------------------
-    def resolve_slots(self, ids: np.ndarray, x0: np.ndarray) -> int:
+    def resolve_slots(self, ids: np.ndarray, x0: np.ndarray, period=None) -> int:
         """Set each half-bond's local partner row from ``ids`` (global ids of the owned + halo
         points, owned rows first, any order) and their reference positions ``x0``. A periodic
-        halo holds several images of one id: the image nearest in the reference configuration
-        is the partner (unique while the period exceeds twice the bond reach). Returns the
-        number of intact half-bonds whose partner is absent (slot -1): the halo is too small,
-        which the caller must treat as an error. Broken bonds may have absent partners."""
+        halo holds several copies (images) of one id: a half-bond takes the copy whose
+        reference offset has its ``image`` label (``period``: (d,) lengths, 0 where an axis is
+        not periodic); a partner bonded once whose label no copy has (bonds checkpointed
+        before labels existed carry 0) takes the copy nearest in the reference configuration.
+        Returns the number of intact half-bonds whose partner is absent (slot -1): the halo
+        is too small, which the caller must treat as an error. Broken bonds may have absent
+        partners."""
         ids = np.ascontiguousarray(ids, dtype=np.int64)
         order = np.argsort(ids, kind="stable")
-        return resolve_slots_kernel(self.offsets, self.partner, self.status, ids[order],
-                                    order.astype(np.int64), np.ascontiguousarray(x0),
-                                    self.slot)
+        dim = np.shape(x0)[1]
+        period = (np.zeros(dim) if period is None
+                  else np.ascontiguousarray(period, dtype=np.float64))
+        return resolve_slots_kernel(self.offsets, self.partner, self.status, self.image,
+                                    ids[order], order.astype(np.int64),
+                                    np.ascontiguousarray(x0), period, self.slot)
 
 
 def _offsets(counts: np.ndarray) -> np.ndarray:
@@ -267,13 +315,18 @@ def count_intact(offsets, status):
 
 
 @njit(cache=True, error_model="numpy")
-def resolve_slots_kernel(offsets, partner, status, sorted_ids, order, x0, slot):
+def resolve_slots_kernel(offsets, partner, status, image, sorted_ids, order, x0, period, slot):
     """Binary search of each partner id in ``sorted_ids``; among equal ids (periodic images)
-    the one nearest to the bond's owner in ``x0``; writes ``slot``; returns the number of
+    the copy with the half-bond's image label, or for a partner bonded once without such a
+    copy the nearest to the bond's owner in ``x0``; writes ``slot``; returns the number of
     intact half-bonds whose partner is missing."""
     missing = 0
     m = len(sorted_ids)
     dim = x0.shape[1]
+    X = np.empty(dim)
+    periodic = False
+    for a in range(dim):
+        periodic = periodic or period[a] > 0.0
     for i in range(len(offsets) - 1):
         for b in range(offsets[i], offsets[i + 1]):
             pid = partner[b]
@@ -286,20 +339,39 @@ def resolve_slots_kernel(offsets, partner, status, sorted_ids, order, x0, slot):
                     hi = mid
             if lo < m and sorted_ids[lo] == pid:
                 best = order[lo]
-                if lo + 1 < m and sorted_ids[lo + 1] == pid:
-                    best_d2 = np.inf
-                    k = lo
-                    while k < m and sorted_ids[k] == pid:
-                        j = order[k]
-                        d2 = 0.0
-                        for a in range(dim):
-                            t = x0[j, a] - x0[i, a]
-                            d2 += t * t
-                        if d2 < best_d2:
-                            best_d2 = d2
-                            best = j
-                        k += 1
+                copies = lo + 1 < m and sorted_ids[lo + 1] == pid
+                once = (b == offsets[i] or partner[b - 1] != pid) and \
+                    (b + 1 == offsets[i + 1] or partner[b + 1] != pid)
+                # A partner bonded more than once needs its labelled copy even when the
+                # halo holds one copy only (the other image's bond broke and left it).
+                if copies or (periodic and not once):
+                    best = -1
+                    if periodic:
+                        k = lo
+                        while k < m and sorted_ids[k] == pid:
+                            j = order[k]
+                            for a in range(dim):
+                                X[a] = x0[j, a] - x0[i, a]
+                            if image_label(X, period) == image[b]:
+                                best = j
+                                break
+                            k += 1
+                    if best < 0 and once:
+                        best_d2 = np.inf
+                        k = lo
+                        while k < m and sorted_ids[k] == pid:
+                            j = order[k]
+                            d2 = 0.0
+                            for a in range(dim):
+                                t = x0[j, a] - x0[i, a]
+                                d2 += t * t
+                            if d2 < best_d2:
+                                best_d2 = d2
+                                best = j
+                            k += 1
                 slot[b] = best
+                if best < 0 and status[b] != 0:
+                    missing += 1
             else:
                 slot[b] = -1
                 if status[b] != 0:

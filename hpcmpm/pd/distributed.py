@@ -60,7 +60,7 @@ class DistributedPDBody:
         self._rebuild(bonds=None)
         family = find_families(self.pts.x0, self.pts.ids, p.n, spacing, delta,
                                influence=influence, partial_volumes=partial_volumes,
-                               precracks=precracks)
+                               precracks=precracks, image_period=domain.period_lengths())
         self.bonds = family.bonds
         self.pts.bonds = self.bonds
         model.setup(self.pts)
@@ -86,7 +86,7 @@ class DistributedPDBody:
         self.pts = PDPoints(cat("x0"), cat("x"), cat("vol0"), cat("id"), p.n, bonds,
                             {k: cat(f"pd_{k}") for k in self.persistent})
         if bonds is not None:
-            bonds.resolve_slots(self.pts.ids, self.pts.x0)
+            bonds.resolve_slots(self.pts.ids, self.pts.x0, self.domain.period_lengths())
         self.model.resize(len(self.pts.x))
 
     def step(self, dt: float) -> None:

@@ -38,6 +38,7 @@ from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 from .load import add_bond_load, bond_cost
+from .periodic import follow_wraps
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +89,8 @@ class PDExtension:
                             self.bonds, {k: cat(f"pd_{k}") for k in self.persistent},
                             self.ghosts)
         if self.bonds is not None:
-            self.bonds.resolve_slots(self.pts.ids, self.pts.x0)
+            self.bonds.resolve_slots(self.pts.ids, self.pts.x0,
+                                     self.sim.domain.period_lengths())
         self.model.resize(len(self.pts.x))
 
     def _where(self, key: str = "") -> str:
@@ -142,7 +144,8 @@ class PDExtension:
         family = find_families(self.pts.x0, self.pts.ids, stop - start, self.material.spacing,
                                self.material.delta, influence=prm["influence"],
                                partial_volumes=prm["partial_volumes"],
-                               precracks=prm["precracks"])
+                               precracks=prm["precracks"],
+                               image_period=self.sim.domain.period_lengths())
         self.bonds = family.bonds
         self.pts.bonds = self.bonds
         self.bond_ids = p["id"][start:stop].copy()
@@ -206,22 +209,14 @@ class PDExtension:
         return start, stop
 
     def _follow_periodic_wrap(self, start, stop) -> bool:
-        """Along periodic axes the engine wraps x into the domain; the reference position
-        follows by whole periods (x - x0 kept within half a period), so bond vectors X between
-        a particle and its partners' images stay those of the reference configuration.
+        """Reference positions follow their particles' periodic wraps (pd/periodic.py).
         Returns whether any rank shifted one (a halo rebuild; collective)."""
         domain = self.sim.domain
-        periodic = np.asarray(getattr(domain, "periodic", np.zeros(self.sim.dim, bool)))
-        if not periodic.any():
+        if not getattr(domain, "periodic", np.zeros(1, bool)).any():
             return False
         p = self.sim.particles
-        length = np.where(periodic, domain.n_cells * domain.dx, 0.0)
-        axes = np.flatnonzero(periodic)
-        x, x0 = p["x"][start:stop], p["x0"][start:stop]
-        turns = np.round((x[:, axes] - x0[:, axes]) / length[axes])
-        changed = bool(np.any(turns != 0))
-        if changed:
-            x0[:, axes] += turns * length[axes]
+        changed = follow_wraps(domain.period_lengths(), p["x"][start:stop],
+                               p["x0"][start:stop])
         return domain.any(changed)
 
     def compute_forces(self, start, stop) -> np.ndarray:
@@ -275,7 +270,7 @@ class PDExtension:
 
 class _HalfBondRows:
     """Half-bonds as rows for `hpcmpm.io.checkpoint.write_checkpoint` (its particle-set
-    interface): owner id, partner id, weight, status and the per-bond state."""
+    interface): owner id, partner id, weight, status, image label and the per-bond state."""
 
     def __init__(self, dim: int, arrays: dict[str, np.ndarray]):
         self.dim = dim
@@ -325,7 +320,7 @@ class CheckpointedBonds:
         for folder, segments in self._segment_sets(out_dir):
             b = segments if segments is not None else Bonds.empty(0)
             arrays = {"owner": np.repeat(self.bond_ids, b.counts()), "partner": b.partner,
-                      "weight": b.weight, "status": b.status,
+                      "weight": b.weight, "status": b.status, "image": b.image,
                       **{f"state.{k}": v for k, v in b.state.items()}}
             meta = {"step": int(step), "time": float(self.sim.time),
                     "initialized": segments is not None}
@@ -362,12 +357,16 @@ def _read_segments(path, domain, ids) -> Bonds | None:
     rows = route_half_bonds(domain, rows, ids)
     row_of = {int(i): k for k, i in enumerate(ids)}
     owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
-    order = np.lexsort((rows["partner"], owner_row))
+    # Checkpoints written before image labels existed have none: 0, which `resolve_slots`
+    # reads as "the nearest copy" for a partner bonded once (all such runs had only those).
+    image = rows.get("image", np.zeros(len(owner_row), np.int8))
+    order = np.lexsort((image, rows["partner"], owner_row))
     offsets = np.zeros(len(ids) + 1, np.int64)
     np.cumsum(np.bincount(owner_row, minlength=len(ids)), out=offsets[1:])
     return Bonds(offsets, rows["partner"][order], rows["weight"][order],
                  rows["status"][order],
-                 state={k[6:]: v[order] for k, v in rows.items() if k.startswith("state.")})
+                 state={k[6:]: v[order] for k, v in rows.items() if k.startswith("state.")},
+                 image=image[order])
 
 
 class PDBodyExtension(CheckpointedBonds, PDExtension):

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .bonds import Bonds
+from .bonds import Bonds, image_label
 
 INFLUENCES = ("constant", "inverse", "conical", "gaussian")
 DEFAULT_HORIZON = 3.015  # in particle spacings (Silling & Askari 2005 use 3.015 dx)
@@ -149,7 +149,8 @@ def horizon_length(spacing: float, horizon: float | None = DEFAULT_HORIZON,
 
 def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
                   influence: str = "constant", partial_volumes: bool = True,
-                  precracks=None, period=None, period_lo=None) -> Family:
+                  precracks=None, period=None, period_lo=None,
+                  image_period=None) -> Family:
     """Bonds of points ``0..n_owned-1`` to every point of ``x0`` (owned then halo).
 
     Parameters
@@ -162,8 +163,11 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
     precracks : 2D (k, 2, 2) segments; 3D a list of planar polygons, each (m >= 3, 3).
     period : (d,) period per axis (0 or inf: not periodic) for a periodic box starting at
         ``period_lo``; images of the points within the search radius are appended and bonds
-        reach them (the minimum image while the period exceeds twice the radius).
-    Returns a `Family`; its bonds' slots index the (extended) point arrays.
+        reach them (every image nearer than the radius, which must be below the period).
+    image_period : (d,) periods of a box whose images the caller already put among the
+        points (a rank's periodic halo): only to label the half-bonds' images.
+    Returns a `Family`; its bonds' slots index the (extended) point arrays, each segment
+    ordered by (partner id, image label: bonds.image_label).
     """
     x0 = np.ascontiguousarray(x0, dtype=np.float64)
     ids = np.ascontiguousarray(ids, dtype=np.int64)
@@ -175,9 +179,9 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
     if period is not None:
         period = np.asarray(period, dtype=np.float64)
         periodic = np.isfinite(period) & (period > 0)
-        if np.any(period[periodic] <= 2.0 * radius):
-            raise ValueError(f"period {period.tolist()} must exceed twice the bond search "
-                             f"radius {radius:g}")
+        if np.any(period[periodic] <= radius):
+            raise ValueError(f"period {period.tolist()} must exceed the bond search radius "
+                             f"{radius:g} (a particle would bond to its own image)")
         lo = np.asarray(period_lo if period_lo is not None else np.zeros(dim), np.float64)
         image_source, image_shift = periodic_images(x0, lo, np.where(periodic, period, 0.0),
                                                     radius)
@@ -198,8 +202,13 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
     _search(x0, n_owned, keys[order], order, cell_lo, ncell, radius, delta, spacing,
             partial_volumes, code, seg, poly_v, poly_off, counts, offsets, slot, weight, False)
     partner = ids[slot]
-    _sort_segments_by_id(offsets, partner, slot, weight)
-    bonds = Bonds(offsets, partner, weight, slot=slot)
+    image = np.zeros(nb, dtype=np.int8)
+    labels = period if period is not None else image_period
+    if labels is not None:
+        labels = np.where(np.isfinite(labels) & (np.asarray(labels) > 0), labels, 0.0)
+        _label_images(offsets, slot, x0, np.ascontiguousarray(labels, np.float64), image)
+    _sort_segments_by_id(offsets, partner, slot, weight, image)
+    bonds = Bonds(offsets, partner, weight, slot=slot, image=image)
     return Family(bonds, float(delta), float(spacing), float(radius), bool(partial_volumes),
                   influence, image_source, image_shift)
 
@@ -414,16 +423,30 @@ def _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
 
 
 @njit(cache=True, error_model="numpy")
-def _sort_segments_by_id(offsets, partner, slot, weight):
-    """Order each particle's half-bonds by partner id (the summation order on any rank)."""
+def _label_images(offsets, slot, x0, period, image):
+    """Each half-bond's periodic image label (bonds.image_label) from its reference offset."""
+    X = np.empty(x0.shape[1])
+    for i in range(len(offsets) - 1):
+        for b in range(offsets[i], offsets[i + 1]):
+            for a in range(x0.shape[1]):
+                X[a] = x0[slot[b], a] - x0[i, a]
+            image[b] = image_label(X, period)
+
+
+@njit(cache=True, error_model="numpy")
+def _sort_segments_by_id(offsets, partner, slot, weight, image):
+    """Order each particle's half-bonds by partner id, then image label (the summation order
+    on any rank; labels are below 27, so partner * 32 + label orders both)."""
     for i in range(len(offsets) - 1):
         a, b = offsets[i], offsets[i + 1]
         if b - a < 2:
             continue
-        o = np.argsort(partner[a:b])
+        o = np.argsort(partner[a:b] * 32 + image[a:b])
         p = partner[a:b][o].copy()
         s = slot[a:b][o].copy()
         w = weight[a:b][o].copy()
+        g = image[a:b][o].copy()
         partner[a:b] = p
         slot[a:b] = s
         weight[a:b] = w
+        image[a:b] = g

@@ -22,6 +22,10 @@ What the engine calls, and when:
      starts broken and counts in the damage. The new particles' ids, x0 and x^ go to every
      rank (one allgather per step with conversions), so both ends of a cross-rank bond build
      it from the same bits; the end that already was PD sends the other end its half-bond.
+     Along periodic axes the reference positions follow their particles' wraps by whole
+     periods, and the search brings them into the box and adds images near its faces
+     (periodic.py), so families reach across a face (radius below half the period: one
+     image per partner, the scene check).
   3. PD evolution at x^ (Alg. 3 lines 3-21, corrected): K, F^PD = (sum w Y (x) X V) K^-1
      (K^-1 after the sum), sigma^PD from the particle's own material at F^PD (snow at
      F^PD F_P^-1; shock and j2, which keep no total F: their own stress, handed over as
@@ -81,6 +85,7 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
 from .families import family_radius, find_families, half_bonds_per_particle
+from .periodic import canonical_images, follow_wraps
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
 from .load import add_bond_load, bond_cost
 from .moduli import equivalent_micromodulus, pmb_micromodulus
@@ -102,8 +107,11 @@ class SPBExtension(CheckpointedBonds):
         self.material = mats[0]          # names the bonds' checkpoint folder
         specs = [m.failure for m in mats]
         # parse_scene reports these already; a scene built in code meets them here.
+        lo, hi = np.asarray(sim.scene.domain_lo), np.asarray(sim.scene.domain_hi)
+        periods = [(a, float(hi[a] - lo[a])) for a in getattr(sim.scene, "periodic", ()) or ()]
         problems = failure_scene_problems(sim.materials, sim.scene.transfer,
-                                          sim.scene.integrator)
+                                          sim.scene.integrator, periods,
+                                          sim.dx / sim.scene.particles_per_cell)
         if problems:
             raise SceneError([f"{sim.scene.path}: {key}: {what}" for key, what in problems])
         f0 = specs[0]
@@ -235,6 +243,9 @@ class SPBExtension(CheckpointedBonds):
     # -- after G2P, before the state update: Alg. 3 ---------------------------------------------
     def before_state(self, sim, dt: float) -> None:
         self.need_x0 = False
+        # Every step, PD or not yet: the displacement since t = 0 is tracked across wraps
+        # only while it changes by less than half a period between two looks.
+        wrapped = self._follow_periodic_wrap(sim)
         with sim.phase("spb_convert"):
             new_rows = self._convert(sim, dt)
             n_new = int(sim.domain.sum(len(new_rows))) if self.checked else 0
@@ -244,7 +255,7 @@ class SPBExtension(CheckpointedBonds):
             return
         with sim.phase("pd"):
             pd_rows = np.flatnonzero(sim.particles["model"] == 1)
-            self._sync_bonds(sim, pd_rows, new_rows, n_new)
+            self._sync_bonds(sim, pd_rows, new_rows, n_new, wrapped)
             dv = self._evolve(sim, pd_rows, dt)
         with sim.phase("spb_retransfer"):
             self._retransfer(sim, pd_rows, dv, dt)
@@ -292,9 +303,30 @@ class SPBExtension(CheckpointedBonds):
     def _state_names(self):
         return WORK_STATE if self.failure == "work" else ()
 
-    def _sync_bonds(self, sim, pd_rows, new_rows, n_new) -> None:
+    def _follow_periodic_wrap(self, sim) -> bool:
+        """The reference positions of the SPB particles, MPM and PD, follow their periodic
+        wraps (pd/periodic.py): a particle converts with the reference position its
+        neighbours' is measured against, and a PD particle that crossed a face keeps its
+        bonds. Returns whether a PD particle's moved on any rank (collective)."""
+        domain = sim.domain
+        if not domain.periodic.any():
+            return False
+        p = sim.particles
+        period = domain.period_lengths()
+        moved = False
+        for g in self.groups:
+            start, stop = sim.group_slices[g]
+            x0 = p["x0"][start:stop]
+            before = x0.copy() if self.pd_global else None
+            if follow_wraps(period, p["x"][start:stop], x0) and before is not None:
+                moved = moved or bool(np.any((x0 != before).any(axis=1)
+                                             & (p["model"][start:stop] == 1)))
+        return domain.any(moved)
+
+    def _sync_bonds(self, sim, pd_rows, new_rows, n_new, wrapped=False) -> None:
         """Bond rows follow the PD rows (by id) after sorts, migration and rebalancing; the
-        new PD particles get their bonds; the PD halo is rebuilt when anything changed."""
+        new PD particles get their bonds; the PD halo is rebuilt when anything changed
+        (``wrapped``: a PD particle's reference position followed a periodic wrap)."""
         p, domain = sim.particles, sim.domain
         ids = p["id"][pd_rows]
         new_ids = p["id"][new_rows]
@@ -320,7 +352,7 @@ class SPBExtension(CheckpointedBonds):
         if n_new:
             self._new_bonds(sim, pd_rows, np.isin(ids, new_ids))
         x = p["x"][pd_rows]
-        if n_new or moved or self.halo is None or self.halo.stale(x):
+        if n_new or moved or wrapped or self.halo is None or self.halo.stale(x):
             self._rebuild_halo(sim, pd_rows)
         else:
             n = len(pd_rows)
@@ -339,23 +371,47 @@ class SPBExtension(CheckpointedBonds):
         g_x = np.concatenate([every[r]["x"] for r in others] or [np.empty((0, self.dim))])
         g_rank = np.concatenate([np.full(len(every[r]["id"]), r) for r in others]
                                 or [np.empty(0, np.int64)])
+        # Along periodic axes every reference position is brought into the box and the
+        # points near its faces get images (pd/periodic.py), so bonds reach across a face;
+        # the current positions move with the same shifts.
+        x0_mine, x_mine = p["x0"][pd_rows], p["x"][pd_rows]
+        period = sim.domain.period_lengths()
+        lo = np.asarray(sim.domain_lo, np.float64)
+        periodic = bool(period.any())
+        if periodic:
+            shift, _, _ = canonical_images(lo, period, x0_mine, self.radius)
+            x0_mine, x_mine = x0_mine + shift, x_mine + shift
+            shift, _, _ = canonical_images(lo, period, g_x0, self.radius)
+            g_x0, g_x = g_x0 + shift, g_x + shift
         # My PD particles within the search radius of some new particle (reference cells of
-        # the radius: a neighbour is at most one cell away).
-        x0_mine = p["x0"][pd_rows]
-        new_x0 = np.concatenate([mine["x0"], g_x0])
+        # the radius: a neighbour is at most one cell away), or of an image of one.
+        new_x0 = np.concatenate([x0_mine[is_new], g_x0])
+        if periodic and len(new_x0):
+            _, src, img = canonical_images(lo, period, new_x0, self.radius)
+            new_x0 = np.concatenate([new_x0, new_x0[src] + img])
         near = _near_cells(x0_mine, new_x0, self.radius) if len(new_x0) else \
             np.zeros(len(pd_rows), bool)
         sel = np.flatnonzero(near | is_new)
         pts_x0 = np.concatenate([x0_mine[sel], g_x0])
-        pts_x = np.concatenate([p["x"][pd_rows[sel]], g_x])
+        pts_x = np.concatenate([x_mine[sel], g_x])
         pts_id = np.concatenate([p["id"][pd_rows[sel]], g_id])
         pts_new = np.concatenate([is_new[sel], np.ones(len(g_id), bool)])
-        n_sel = len(sel)
-        fam = find_families(pts_x0, pts_id, n_sel, self.spacing, self.delta)
+        n_sel, n_pts = len(sel), len(pts_id)
+        src = np.empty(0, np.int64)
+        if periodic:
+            _, src, img = canonical_images(lo, period, pts_x0, self.radius)
+            pts_x0 = np.concatenate([pts_x0, pts_x0[src] + img])
+            pts_x = np.concatenate([pts_x, pts_x[src] + img])
+        fam = find_families(pts_x0, np.concatenate([pts_id, pts_id[src]]), n_sel,
+                            self.spacing, self.delta)
         b = fam.bonds
         owner = np.repeat(np.arange(n_sel), b.counts())
-        keep = pts_new[owner] | pts_new[b.slot]
-        owner, slot, weight = owner[keep], b.slot[keep].astype(np.int64), b.weight[keep]
+        slot = b.slot.astype(np.int64)
+        # The point each bond reaches (an image's source) names its id, rank and newness.
+        base = np.where(slot < n_pts, slot, src[np.maximum(slot - n_pts, 0)] if len(src)
+                        else slot)
+        keep = pts_new[owner] | pts_new[base]
+        owner, slot, base, weight = owner[keep], slot[keep], base[keep], b.weight[keep]
         X = pts_x0[slot] - pts_x0[owner]
         Y = pts_x[slot] - pts_x[owner]
         xl = np.sqrt(np.sum(X * X, axis=1))
@@ -366,12 +422,12 @@ class SPBExtension(CheckpointedBonds):
         rows = sel[owner]                          # bond rows (= index in pd_rows)
         # The far end of a bond from an existing PD particle of mine to another rank's new
         # particle: its owner does not see my particle, so it gets its half-bond from me.
-        remote = (slot >= n_sel) & ~pts_new[owner]
-        records = {"target": pts_id[slot[remote]], "partner": pts_id[owner[remote]],
+        remote = (base >= n_sel) & ~pts_new[owner]
+        records = {"target": pts_id[base[remote]], "partner": pts_id[owner[remote]],
                    "weight": weight[remote], "status": status[remote],
-                   "rank": g_rank[slot[remote] - n_sel]}
-        local = slot < n_sel
-        partner = pts_id[slot]
+                   "rank": g_rank[base[remote] - n_sel]}
+        local = base < n_sel
+        partner = pts_id[base]
         got = _send_records(domain, records)
         pd_ids = p["id"][pd_rows]
         by_id = np.argsort(pd_ids, kind="stable")
@@ -393,7 +449,7 @@ class SPBExtension(CheckpointedBonds):
         cat = lambda k: np.concatenate([static[k], halo[k]]).astype(static[k].dtype)  # noqa
         self.pts_ids, self.pts_x0, self.pts_vol = cat("id"), cat("x0"), cat("vol0")
         self.pts_x, self.pts_wc = cat("x"), cat("wc")
-        self.bonds.resolve_slots(self.pts_ids, self.pts_x0)
+        self.bonds.resolve_slots(self.pts_ids, self.pts_x0, sim.domain.period_lengths())
         self.halo_builds += 1
         m, d = len(self.pts_x), self.dim
         self.F = np.zeros((m, d, d))

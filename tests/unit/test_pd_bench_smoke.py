@@ -21,6 +21,6 @@ def test_bench_pd_smoke(tmp_path):
     data = json.loads(out.read_text())
     for family in ("truncated", "partial_volumes"):
         rates = data[family]
-        assert rates["bytes_per_half_bond"] == 21
+        assert rates["bytes_per_half_bond"] == 22
         for key in ("pmb_ceiling", "pmb", "lps_ceiling", "lps"):
             assert math.isfinite(rates[key]) and rates[key] > 0

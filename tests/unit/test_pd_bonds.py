@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hpcmpm.pd.bonds import Bonds
+from hpcmpm.pd.bonds import Bonds, image_label
 
 
 def small_bonds():
@@ -25,9 +25,10 @@ def segment(b, i):
 
 def test_resident_bytes_per_half_bond():
     b = small_bonds()
-    # partner i8 + weight f8 + slot i4 + status i1 = 21 B, + 8 B per per-bond state array.
-    assert b.resident_bytes_per_bond() == 21 + 8
-    assert Bonds.empty(3).resident_bytes_per_bond() == 21
+    # partner i8 + weight f8 + slot i4 + status i1 + image i1 = 22 B, + 8 B per per-bond
+    # state array.
+    assert b.resident_bytes_per_bond() == 22 + 8
+    assert Bonds.empty(3).resident_bytes_per_bond() == 22
 
 
 def test_permute_keeps_each_particles_segment():
@@ -86,6 +87,50 @@ def test_resolve_slots_takes_the_nearest_image_whatever_its_row(near_row):
     x0 = np.stack([x, np.zeros_like(x)], axis=1)
     assert b.resolve_slots(ids, x0) == 0
     assert b.slot.tolist() == [1, 2, near_row, 1, 3]
+
+
+def test_image_labels_tell_the_images_of_one_partner_apart():
+    """Along a periodic axis (period 4) the offsets d and d - 4 of one partner get different
+    labels, including the tie d = +-2 (half the period), whatever the round-off; a
+    non-periodic axis counts 0."""
+    period = np.array([4.0, 0.0])
+    label = lambda *X: image_label(np.array(X, float), period)  # noqa: E731
+    for d in (0.5, 1.5, 2.0, 2.0 - 1e-12, 2.0 + 1e-12, 3.5):
+        assert label(d, 0.3) != label(d - 4.0, 0.3), d
+    assert label(2.0 * (1 + 1e-15), 7.0) == label(2.0 * (1 - 1e-15), -7.0)
+    assert label(-2.0 * (1 + 1e-15), 0.0) == label(-2.0 * (1 - 1e-15), 0.0)
+    assert label(0.0, 5.0) == label(1.9, -5.0) == label(-1.9, 1.0) == 0  # the minimum image
+    assert len({label(d, 0.0) for d in (-3.0, 1.0, 3.0)}) == 3
+    label3 = lambda *X: image_label(np.array(X, float), np.array([4.0, 4.0, 4.0]))  # noqa
+    codes = {label3(a, b, c) for a in (-3.0, 1.0, 3.0) for b in (-3.0, 1.0, 3.0)
+             for c in (-3.0, 1.0, 3.0)}
+    assert codes == set(range(27))
+
+
+@pytest.mark.parametrize("rows", [(4, 5), (5, 4)])
+def test_resolve_slots_gives_each_image_of_a_partner_its_own_copy(rows):
+    """A particle bonded twice to id 10 across a periodic axis (period 4: offsets +2 and -2,
+    labels from `image_label`) takes the halo copy with each half-bond's label, wherever the
+    copies sit in the rows; with one copy gone its half-bond, broken, is unresolved and the
+    other still finds its own copy; a partner bonded once takes its nearest copy."""
+    period = np.array([4.0, 0.0])
+    x0 = np.array([[1.0, 0.0], [0.0, 0.0], [2.0, 0.0], [3.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    x0[rows[0], 0], x0[rows[1], 0] = 3.0, -1.0       # the two images of id 10 (x0 = 3, -1)
+    ids = np.array([1, 11, 12, 13, 10, 10])
+    up, down = (image_label(np.array([s, 0.0]), period) for s in (2.0, -2.0))
+    b = Bonds([0, 3], [10, 10, 11], [1.0, 1.0, 1.0], image=sorted([up, down]) + [0])
+    assert b.resolve_slots(ids, x0, period) == 0
+    want = {up: 3.0, down: -1.0}
+    assert [x0[b.slot[k], 0] for k in range(2)] == [want[g] for g in b.image[:2]]
+    assert b.slot[2] == 1
+    gone = rows[0]                                    # the copy at x0 = 3 leaves the halo
+    keep = np.flatnonzero(np.arange(6) != gone)
+    b.status[b.image == up] = 0
+    assert b.resolve_slots(ids[keep], x0[keep], period) == 0
+    assert b.slot[b.image == up][0] == -1
+    assert x0[keep][b.slot[b.image == down][0], 0] == -1.0
+    b.status[:] = 1
+    assert b.resolve_slots(ids[keep], x0[keep], period) == 1
 
 
 def test_intact_counts():

@@ -148,8 +148,20 @@ def test_periodic_images_reach_across_the_box():
     x_all = np.concatenate([x0, x0[fam.image_source] + fam.image_shift])
     r = np.linalg.norm(x_all[b.slot] - np.repeat(x0, 4, axis=0), axis=1)
     assert np.allclose(np.sort(r.reshape(10, 4), axis=1), [1, 1, 2, 2])
+    # A radius past half the period (5.1 on 10): the partner 5 apart is bonded twice, once
+    # each way round the ring, as in an infinite chain; the two half-bonds carry different
+    # image labels (bonds.image_label), so `resolve_slots` tells them apart.
+    fam = find_families(x0, ids, 10, 1.0, 4.6, period=[10.0, 0, 0])
+    b = fam.bonds
+    assert b.counts().tolist() == [10] * 10
+    seg = slice(b.offsets[0], b.offsets[1])
+    assert b.partner[seg].tolist() == [1, 2, 3, 4, 5, 5, 6, 7, 8, 9]
+    x_all = np.concatenate([x0, x0[fam.image_source] + fam.image_shift])
+    X = x_all[b.slot[seg], 0] - x0[0, 0]
+    assert sorted(X.tolist()) == [-5, -4, -3, -2, -1, 1, 2, 3, 4, 5]
+    assert b.image[seg][4] != b.image[seg][5]
     with pytest.raises(ValueError, match="period"):
-        find_families(x0, ids, 10, 1.0, 4.6, period=[10.0, 0, 0])
+        find_families(x0, ids, 10, 1.0, 9.6, period=[10.0, 0, 0])
 
 
 @pytest.mark.parametrize("name", ["constant", "inverse", "conical", "gaussian"])

@@ -120,8 +120,8 @@ upper = [0.6, 0.6, 0.6]
 
 def test_too_many_bonds_are_refused_at_the_scene_level_with_the_number(tmp_path, capsys):
     """A 300-spacing horizon: 283,656 half-bonds per interior particle (lattice points within
-    300.5 spacings, counted here), 21 B resident each (pd/bonds.py) plus 4 B of search
-    scratch, times 1600 particles (10.6 GiB); `hpcmpm validate` prints that estimate, and
+    300.5 spacings, counted here), 22 B resident each (pd/bonds.py) plus 4 B of search
+    scratch, times 1600 particles (11.0 GiB); `hpcmpm validate` prints that estimate, and
     `hpcmpm run` refuses it in one line before sampling when it exceeds the memory available
     (patched to 4 GiB here)."""
     ii, jj = np.meshgrid(np.arange(-301, 302), np.arange(-301, 302))
@@ -130,7 +130,7 @@ def test_too_many_bonds_are_refused_at_the_scene_level_with_the_number(tmp_path,
     path.write_text(PLATE.replace('model = "pmb"', 'model = "pmb"\nhorizon = 300.0'))
     assert cli.main(["validate", str(path)]) == 0
     out = capsys.readouterr().out
-    bonds = 1600 * count * (21 + 4) / 2**30
+    bonds = 1600 * count * (22 + 4) / 2**30
     assert f"{bonds:.1f} GiB for {count} half-bonds per particle of 'glass'" in out
     from hpcmpm import startup
     old = startup.available_memory
@@ -236,9 +236,9 @@ def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, sta
                                                                 ghost_states):
     """The estimate before allocation (`side_bytes_per_particle`, used by the start-up
     memory check and the refusal above) prices a half-bond as the bonds the run then holds
-    do, per-bond states included (21 B core, 8 B a state, 4 B search scratch), and the PD
+    do, per-bond states included (22 B core, 8 B a state, 4 B search scratch), and the PD
     clamp's ghost store (clamp.ghost_store) for the particles within reach of a clamped
-    wall only: one entry per half-bond and one for the particle's own image, each 21 B and
+    wall only: one entry per half-bond and one for the particle's own image, each 22 B and
     8 B a state, for the share of the bodies' bounding boxes within reach. That share counts
     interior families, so it may exceed the store a run holds (fewer bonds near a body's
     edge, a disk's corners empty) but not fall below it by more than those (here: within
@@ -255,13 +255,13 @@ def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, sta
     ext.compute_forces(*ext._rows())         # the models declare their state on first use
     material = ext.material
     n_bonds = material.half_bonds_per_particle()
-    assert ext.bonds.resident_bytes_per_bond() == 21 + 8 * states
+    assert ext.bonds.resident_bytes_per_bond() == 22 + 8 * states
     if not ghost_states:
         assert ext.ghosts is None
-        assert material.side_bytes_per_particle() == n_bonds * (21 + 8 * states + 4)
+        assert material.side_bytes_per_particle() == n_bonds * (22 + 8 * states + 4)
         return
     ghosts = ext.ghosts
-    assert ghosts.resident_bytes_per_bond() == 21 + 8 * ghost_states
+    assert ghosts.resident_bytes_per_bond() == 22 + 8 * ghost_states
     # Entries exactly for the particles within reach, one per half-bond and one own.
     start, stop = ext._rows()
     near = near_rows(sim.particles["x0"][start:stop], stop - start, material.clamp_faces,
@@ -270,8 +270,8 @@ def test_memory_estimate_counts_the_bond_states_a_run_allocates(scene, sets, sta
     assert 0 < near.sum() < len(near)
     assert np.array_equal(counts[near], ext.bonds.counts()[near] + 1)
     assert not counts[~near].any()
-    estimate = material.side_bytes_per_particle() - n_bonds * (21 + 8 * states + 4)
-    entries = len(near) * estimate / (21 + 8 * ghost_states)
+    estimate = material.side_bytes_per_particle() - n_bonds * (22 + 8 * states + 4)
+    entries = len(near) * estimate / (22 + 8 * ghost_states)
     print(f"{scene}: {near.sum()} of {len(near)} particles in reach, ghost entries "
           f"{ghosts.n_bonds} (estimate {entries:.0f}); a dense store would hold "
           f"{ext.bonds.n_bonds} x {8 * ghost_states} B = "
