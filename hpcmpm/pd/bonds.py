@@ -61,13 +61,17 @@ def image_label(X, period):
     (every |X_a| below half the period) is 0, the label of a half-bond made without one;
     axes with P_a = 0 count 0. Two images of one partner differ by a whole period along
     some axis, so their labels differ; X itself, and so the label, does not change when a
-    particle's reference position follows it across a periodic face by a whole period."""
+    particle's reference position follows it across a periodic face by a whole period.
+    An offset of a period and a half or more on some axis (a copy two periods away, which
+    the halo of an axis narrower than its reach holds) is no bond's: -1, matching none."""
     code = 0
     scale = 1
     for a in range(len(X)):
         if period[a] > 0.0:
             n = math.floor(X[a] / period[a] + 0.5 + _LABEL_BIAS)
-            code += (min(max(n, -1), 1) % 3) * scale
+            if n < -1 or n > 1:
+                return -1
+            code += (n % 3) * scale
         scale *= 3
     return code
 

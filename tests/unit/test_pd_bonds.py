@@ -105,6 +105,8 @@ def test_image_labels_tell_the_images_of_one_partner_apart():
     codes = {label3(a, b, c) for a in (-3.0, 1.0, 3.0) for b in (-3.0, 1.0, 3.0)
              for c in (-3.0, 1.0, 3.0)}
     assert codes == set(range(27))
+    # Two periods away (a narrow axis's halo holds such copies): no bond's image.
+    assert label(7.0, 0.0) == label(-7.0, 0.0) == -1
 
 
 @pytest.mark.parametrize("rows", [(4, 5), (5, 4)])
@@ -131,6 +133,18 @@ def test_resolve_slots_gives_each_image_of_a_partner_its_own_copy(rows):
     assert x0[keep][b.slot[b.image == down][0], 0] == -1.0
     b.status[:] = 1
     assert b.resolve_slots(ids[keep], x0[keep], period) == 1
+
+
+def test_resolve_slots_skips_a_copy_two_periods_away():
+    """On an axis narrower than the halo's reach (period 4) the halo holds copies of a
+    partner one and two periods from its image: a half-bond reaching X = +2.5 (label of
+    n = 1) takes that copy, not the one at +6.5 listed before it."""
+    period = np.array([4.0, 0.0])
+    x0 = np.array([[0.0, 0.0], [6.5, 0.0], [-1.5, 0.0], [2.5, 0.0]])
+    ids = np.array([1, 10, 10, 10])
+    b = Bonds([0, 1], [10], [1.0], image=[image_label(np.array([2.5, 0.0]), period)])
+    assert b.resolve_slots(ids, x0, period) == 0
+    assert b.slot[0] == 3
 
 
 def test_intact_counts():
