@@ -248,3 +248,31 @@ def test_half_bond_estimate_matches_an_interior_family():
         fam = find_families(x0, np.arange(len(x0)), len(x0), 1.0, 3.015, partial_volumes=pv)
         centre = int(np.argmin(np.linalg.norm(x0 - 4.0, axis=1)))
         assert half_bonds_per_particle(dim, 3.015, pv) == fam.bonds.counts()[centre]
+
+
+def test_images_resolve_to_the_copies_they_were_built_with_in_3d():
+    """A 4 x 4 x 4 lattice periodic on all three axes (period 4, family radius 3: up to 4
+    images of one partner within the radius, two along each of two axes). After the families are
+    built, `resolve_slots` on the same points with the image rows shuffled (a halo lists its
+    copies in any order) gives every half-bond the copy with its reference vector."""
+    axis = np.arange(4) + 0.5
+    x0 = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    n = len(x0)
+    period = np.array([4.0, 4.0, 4.0])
+    fam = find_families(x0, np.arange(n), n, 1.0, 2.5, period=period)
+    b = fam.bonds
+    pts = np.concatenate([x0, x0[fam.image_source] + fam.image_shift])
+    ids = np.concatenate([np.arange(n), fam.image_source])
+    owner = np.repeat(np.arange(n), b.counts())
+    X = pts[b.slot] - x0[owner]
+    # The partner 2 apart along x is bonded twice (+2 and -2), the one 2 apart along x
+    # and y four times.
+    seg = slice(b.offsets[0], b.offsets[1])
+    assert np.sum(b.partner[seg] == ids[np.flatnonzero((pts == [2.5, 0.5, 0.5]).all(1))[0]]) \
+        == 2
+    assert np.sum(b.partner[seg] == ids[np.flatnonzero((pts == [2.5, 2.5, 0.5]).all(1))[0]]) \
+        == 4
+    order = np.concatenate([np.arange(n), n + np.random.default_rng(3).permutation(len(ids) - n)])
+    b.slot[:] = -1
+    assert b.resolve_slots(ids[order], pts[order], period) == 0
+    assert np.array_equal(pts[order][b.slot] - x0[owner], X)
