@@ -32,7 +32,8 @@ images of one partner (a reference offset d and d - P, both shorter than r, once
 two half-bonds with one partner id, told apart by ``image``, a label of the reference bond
 vector X that reference positions following their particle by whole periods leave unchanged
 (`image_label`). A segment is ordered by (partner, image), and `resolve_slots` gives each
-such half-bond the halo copy with its label; a partner bonded once takes its nearest copy.
+half-bond the halo copy with its label (a partner bonded once whose label no copy has takes
+its nearest copy, the rule before labels).
 """
 
 from __future__ import annotations

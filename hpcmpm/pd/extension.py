@@ -357,8 +357,9 @@ def _read_segments(path, domain, ids) -> Bonds | None:
     rows = route_half_bonds(domain, rows, ids)
     row_of = {int(i): k for k, i in enumerate(ids)}
     owner_row = np.array([row_of[int(i)] for i in rows["owner"]], dtype=np.int64)
-    # Checkpoints written before image labels existed have none: 0, which `resolve_slots`
-    # reads as "the nearest copy" for a partner bonded once (all such runs had only those).
+    # Checkpoints written before image labels existed have none: 0, the minimum image, which
+    # is every bond's image while the family radius stays below half the period (and
+    # `resolve_slots` falls back to the nearest copy for a partner bonded once).
     image = rows.get("image", np.zeros(len(owner_row), np.int8))
     order = np.lexsort((image, rows["partner"], owner_row))
     offsets = np.zeros(len(ids) + 1, np.int64)

@@ -4,6 +4,8 @@ makes the families itself at its first step, as the uninterrupted run does, and 
 same state bitwise. Reading that empty checkpoint as bonds would leave every particle
 without a bond."""
 
+from pathlib import Path
+
 import numpy as np
 
 from hpcmpm.parallel import Communicator
@@ -76,3 +78,33 @@ def test_restored_bonds_are_the_checkpointed_bonds(tmp_path):
     assert got.keys() == want.keys()
     for key, value in want.items():
         assert got[key] == value, key
+
+
+def test_restart_from_bonds_checkpointed_without_image_labels(tmp_path):
+    """Bonds checkpointed before half-bonds carried periodic image labels (no
+    ``particles/image`` in pd_bonds_<material>/) restart with every label 0, the minimum
+    image, and reach the uninterrupted run's state bitwise."""
+    import h5py
+
+    from hpcmpm.pd.extension import bonds_folder
+
+    comm = Communicator()
+    scene = load_scene("inputs/pd_plate_tear_2d.toml", [f"simulation.dt={DT}"])
+    sim = Simulation(scene, make_domain(scene, comm))
+    initial_particles(sim)
+    runner = Runner(sim, None, RunOptions(out_dir=tmp_path, end_time=20 * DT, quiet=True))
+    runner.run()
+    runner.write_checkpoint()
+    ckpt = Path(runner.latest_checkpoint_path)
+    Runner(sim, None, RunOptions(out_dir=tmp_path / "rest", end_time=STEPS * DT,
+                                 quiet=True)).run()
+    ref = by_id(sim.particles)
+    with h5py.File(bonds_folder(ckpt.parent, "glass") / ckpt.name, "r+") as h5:
+        del h5["particles/image"]
+    again, _, end = restore_simulation(str(ckpt), comm, STEPS * DT)
+    assert not again.extensions[0].bonds.image.any()
+    Runner(again, None, RunOptions(out_dir=tmp_path / "b", end_time=end, quiet=True)).run()
+    got = by_id(again.particles)
+    assert again.step_index == STEPS
+    for name in ("id", "x", "v", "damage"):
+        assert np.array_equal(got[name], ref[name]), name
