@@ -176,11 +176,15 @@ def points_in_boxes(x, lo, hi):
 
 
 @njit(cache=True)
-def wrap_periodic(x, domain_lo, inv_dx, dx, period):
+def wrap_periodic(x, domain_lo, inv_dx, dx, period, follow):
     """Wrap positions into the domain along the periodic axes, in place:
     ``x <- lo + (x - lo) mod L`` with ``L = period * dx`` (``period[a] = 0``: axis a is not
     periodic). Positions already inside (most of them) are only compared; non-finite ones are
     left for the instability guard. Returns the number of coordinates wrapped.
+
+    ``follow`` (n, dim), or no rows: positions that move with x by the same whole periods,
+    ``k L`` exactly (the reference positions of peridynamic particles: x - x0 stays the
+    displacement, however far a body travels).
 
     ``(x - lo) mod L`` can round up to ``L`` (a coordinate a hair below ``lo``); the image of
     the upper face is the lower one, so such a coordinate becomes ``lo``. The test uses the
@@ -199,6 +203,8 @@ def wrap_periodic(x, domain_lo, inv_dx, dx, period):
             xi = (y - domain_lo[a]) * inv_dx
             if not (xi >= 0.0 and xi < m):
                 y = domain_lo[a]
+            if follow.shape[0]:
+                follow[p, a] += round((y - x[p, a]) / (m * dx)) * (m * dx)
             x[p, a] = y
             wrapped += 1
     return wrapped

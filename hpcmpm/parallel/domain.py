@@ -27,6 +27,8 @@ from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM,
                        pack_regions, pack_rows, region_slices, row_dtype, unpack_regions,
                        unpack_rows)
 
+# The particle field of reference positions, which moves with x across periodic faces.
+FOLLOWS_WRAPS = "x0"
 # Kernel support around a particle's cell, in nodes: 1 below, 2 above (quadratic and cubic).
 GHOST_BELOW, GHOST_ABOVE = 1, 2
 # Cells around a rank's box within which its neighbours' boxes lie. A rank's particles stay in
@@ -152,7 +154,7 @@ class Domain(Communicator):
         (by their integer ``weights`` (n,) when given, `Simulation.load_weights`), then move
         every particle to its owner (`migrate_all`, ``batch`` rows per round). Collective and
         deterministic."""
-        self.wrap(particles["x"])
+        self.wrap_particles(particles)
         cells = particle_cells(particles["x"], self.domain_lo, self.inv_dx)
         boxes = recursive_bisection(cells, self.size, self.n_cells,
                                     self._reduce_max, self._reduce_sum, self.periodic,
@@ -209,13 +211,24 @@ class Domain(Communicator):
         """The period of each axis as a length, 0 where the axis is not periodic."""
         return self.period * self.dx
 
-    def wrap(self, x: np.ndarray) -> int:
+    def wrap(self, x: np.ndarray, follow: np.ndarray | None = None) -> int:
         """Wrap positions x (n, dim) into the domain along the periodic axes, in place
-        (``x <- lo + (x - lo) mod L``); returns how many coordinates moved. Nothing to do
-        (and no pass over x) without periodic axes."""
+        (``x <- lo + (x - lo) mod L``); ``follow`` (n, dim) moves by the same whole periods.
+        Returns how many coordinates moved. Nothing to do (and no pass over x) without
+        periodic axes."""
         if not self._any_periodic or not len(x):
             return 0
-        return int(wrap_periodic(x, self.domain_lo, self.inv_dx, self.dx, self.period))
+        if follow is None:
+            follow = np.empty((0, self.dim))
+        return int(wrap_periodic(x, self.domain_lo, self.inv_dx, self.dx, self.period, follow))
+
+    def wrap_particles(self, particles) -> int:
+        """`wrap` the particles' positions; their reference positions (the field
+        ``FOLLOWS_WRAPS``, where the particles carry it: peridynamic and SPB materials) move
+        by the same whole periods, so a bond's reference vector between a particle and a
+        copy of its partner stays what it was, however far the body travels."""
+        follow = particles[FOLLOWS_WRAPS] if FOLLOWS_WRAPS in particles else None
+        return self.wrap(particles["x"], follow)
 
     def owners(self, x: np.ndarray) -> np.ndarray:
         """Owning rank of each position x (n, dim) (of its periodic image in the domain)."""
@@ -272,7 +285,7 @@ class Domain(Communicator):
         Positions are wrapped into the domain along the periodic axes first (G2P moved them
         freely): this is the one place a step does it, so P2G, the owner lookup, frames and
         checkpoints all see wrapped positions."""
-        self.wrap(particles["x"])
+        self.wrap_particles(particles)
         if self.size == 1:
             return 0
         graph = self._neighbour_graph()
@@ -297,7 +310,7 @@ class Domain(Communicator):
         (collective: one all-to-all of counts per round). ``batch`` bounds the particles a
         rank sends per round (start-up, where most particles move: the buffers in flight stay
         at ``batch`` rows); rounds go on until no rank has leavers left."""
-        self.wrap(particles["x"])
+        self.wrap_particles(particles)
         self.pending_far = 0
         if self.size == 1:
             return 0

@@ -38,7 +38,6 @@ from .families import find_families
 from .geometry import break_stretched, damage, weighted_volume_sums
 from .integrator import PDPoints, bond_forces
 from .load import add_bond_load, bond_cost
-from .periodic import follow_wraps
 
 log = logging.getLogger(__name__)
 
@@ -198,7 +197,6 @@ class PDExtension:
                 self.redistributions += 1
             self.bond_ids = ids.copy()
         x = self.sim.particles["x"][start:stop]
-        moved = self._follow_periodic_wrap(start, stop) or moved
         # Rebuild after a reorder too: the halo plan's send lists name rows.
         if moved or self.halo.stale(x):
             self._rebuild(start, stop)
@@ -207,17 +205,6 @@ class PDExtension:
             self.pts.x[:n] = x
             self.halo.refresh({"x": x}, {"x": self.pts.x[n:]})
         return start, stop
-
-    def _follow_periodic_wrap(self, start, stop) -> bool:
-        """Reference positions follow their particles' periodic wraps (pd/periodic.py).
-        Returns whether any rank shifted one (a halo rebuild; collective)."""
-        domain = self.sim.domain
-        if not getattr(domain, "periodic", np.zeros(1, bool)).any():
-            return False
-        p = self.sim.particles
-        changed = follow_wraps(domain.period_lengths(), p["x"][start:stop],
-                               p["x0"][start:stop])
-        return domain.any(changed)
 
     def compute_forces(self, start, stop) -> np.ndarray:
         """Failure, state (with the state halo) and bond forces of the rows [start, stop)."""

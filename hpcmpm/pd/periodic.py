@@ -1,28 +1,16 @@
 """Reference positions on periodic axes.
 
-The engine wraps positions x into the domain along periodic axes (`Domain.wrap`); a
-particle's reference position x0 follows it by whole periods (x - x0 kept within half a
-period), so the reference bond X = x0_q - x0_p between a particle and the copy of a partner
-that the halo holds is the same before and after either crosses a face (`follow_wraps`).
-A search for new bonds (SPB-MPM's conversions) brings every reference position into the box
-first and adds the images of those near its faces (`canonical_images`)."""
+The engine wraps positions x into the domain along periodic axes and moves a particle's
+reference position x0 by the same whole periods (`Domain.wrap_particles`), so x - x0 stays
+the displacement however far a body travels, and the reference bond X = x0_q - x0_p between
+a particle and the copy of a partner that the halo holds is the same before and after either
+crosses a face. A search for new bonds (SPB-MPM's conversions) brings every reference
+position into the box first and adds the images of those near its faces
+(`canonical_images`)."""
 
 from __future__ import annotations
 
 import numpy as np
-
-
-def follow_wraps(period: np.ndarray, x: np.ndarray, x0: np.ndarray) -> bool:
-    """Shift ``x0`` (in place) by whole periods so that x - x0 lies within half a period on
-    each periodic axis; returns whether any row moved (this rank only)."""
-    axes = np.flatnonzero(period > 0)
-    if not len(axes) or not len(x):
-        return False
-    turns = np.round((x[:, axes] - x0[:, axes]) / period[axes])
-    changed = bool(np.any(turns != 0))
-    if changed:
-        x0[:, axes] += turns * period[axes]
-    return changed
 
 
 def canonical_images(lo: np.ndarray, period: np.ndarray, x0: np.ndarray, reach: float):

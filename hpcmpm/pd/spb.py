@@ -22,10 +22,10 @@ What the engine calls, and when:
      starts broken and counts in the damage. The new particles' ids, x0 and x^ go to every
      rank (one allgather per step with conversions), so both ends of a cross-rank bond build
      it from the same bits; the end that already was PD sends the other end its half-bond.
-     Along periodic axes the reference positions follow their particles' wraps by whole
-     periods, and the search brings them into the box and adds images near its faces
-     (periodic.py), so families reach across a face (radius below half the period: one
-     image per partner, the scene check).
+     Along periodic axes the reference positions move with their particles' wraps by the
+     same whole periods (`Domain.wrap_particles`), and the search brings them into the box
+     and adds images near its faces (periodic.py), so families reach across a face (radius
+     below half the period: one image per partner, the scene check).
   3. PD evolution at x^ (Alg. 3 lines 3-21, corrected): K, F^PD = (sum w Y (x) X V) K^-1
      (K^-1 after the sum), sigma^PD from the particle's own material at F^PD (snow at
      F^PD F_P^-1; shock and j2, which keep no total F: their own stress, handed over as
@@ -85,7 +85,7 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
 from .families import family_radius, find_families, half_bonds_per_particle
-from .periodic import canonical_images, follow_wraps
+from .periodic import canonical_images
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
 from .load import add_bond_load, bond_cost
 from .moduli import equivalent_micromodulus, pmb_micromodulus
@@ -243,9 +243,6 @@ class SPBExtension(CheckpointedBonds):
     # -- after G2P, before the state update: Alg. 3 ---------------------------------------------
     def before_state(self, sim, dt: float) -> None:
         self.need_x0 = False
-        # Every step, PD or not yet: the displacement since t = 0 is tracked across wraps
-        # only while it changes by less than half a period between two looks.
-        wrapped = self._follow_periodic_wrap(sim)
         with sim.phase("spb_convert"):
             new_rows = self._convert(sim, dt)
             n_new = int(sim.domain.sum(len(new_rows))) if self.checked else 0
@@ -255,7 +252,7 @@ class SPBExtension(CheckpointedBonds):
             return
         with sim.phase("pd"):
             pd_rows = np.flatnonzero(sim.particles["model"] == 1)
-            self._sync_bonds(sim, pd_rows, new_rows, n_new, wrapped)
+            self._sync_bonds(sim, pd_rows, new_rows, n_new)
             dv = self._evolve(sim, pd_rows, dt)
         with sim.phase("spb_retransfer"):
             self._retransfer(sim, pd_rows, dv, dt)
@@ -303,30 +300,10 @@ class SPBExtension(CheckpointedBonds):
     def _state_names(self):
         return WORK_STATE if self.failure == "work" else ()
 
-    def _follow_periodic_wrap(self, sim) -> bool:
-        """The reference positions of the SPB particles, MPM and PD, follow their periodic
-        wraps (pd/periodic.py): a particle converts with the reference position its
-        neighbours' is measured against, and a PD particle that crossed a face keeps its
-        bonds. Returns whether a PD particle's moved on any rank (collective)."""
-        domain = sim.domain
-        if not domain.periodic.any():
-            return False
-        p = sim.particles
-        period = domain.period_lengths()
-        moved = False
-        for g in self.groups:
-            start, stop = sim.group_slices[g]
-            x0 = p["x0"][start:stop]
-            before = x0.copy() if self.pd_global else None
-            if follow_wraps(period, p["x"][start:stop], x0) and before is not None:
-                moved = moved or bool(np.any((x0 != before).any(axis=1)
-                                             & (p["model"][start:stop] == 1)))
-        return domain.any(moved)
-
-    def _sync_bonds(self, sim, pd_rows, new_rows, n_new, wrapped=False) -> None:
+    def _sync_bonds(self, sim, pd_rows, new_rows, n_new) -> None:
         """Bond rows follow the PD rows (by id) after sorts, migration and rebalancing; the
-        new PD particles get their bonds; the PD halo is rebuilt when anything changed
-        (``wrapped``: a PD particle's reference position followed a periodic wrap)."""
+        new PD particles get their bonds; the PD halo is rebuilt when anything changed (a
+        particle wrapped across a periodic face moved by a period: the halo is stale)."""
         p, domain = sim.particles, sim.domain
         ids = p["id"][pd_rows]
         new_ids = p["id"][new_rows]
@@ -352,7 +329,7 @@ class SPBExtension(CheckpointedBonds):
         if n_new:
             self._new_bonds(sim, pd_rows, np.isin(ids, new_ids))
         x = p["x"][pd_rows]
-        if n_new or moved or wrapped or self.halo is None or self.halo.stale(x):
+        if n_new or moved or self.halo is None or self.halo.stale(x):
             self._rebuild_halo(sim, pd_rows)
         else:
             n = len(pd_rows)

@@ -3,10 +3,7 @@ constant velocity through several wraps with no internal force (its bonds wrap w
 1, 2 and 4 ranks agree bitwise.
 
 A strip sheared along the axis (upper half to -x, lower half to +x, far below the critical
-stretch) checks the other direction: each particle's reference position follows its own
-wraps only (`PDExtension._follow_periodic_wrap`: x - x0 kept within half a period), so no
-bond breaks. Moving every particle the same way, a wrong rounding of the turns shifts all
-x0 alike and goes unnoticed.
+stretch) moves its particles in both directions: no bond breaks, 1 and 2 ranks agree.
 
 A strip 2 cells high, periodic along y too, checks that a family holding two images of one
 partner keeps each (bonds.image_label) on 1 and 2 ranks and through a restart."""
@@ -54,19 +51,26 @@ velocity = [150.0, 0.0]
 
 
 def test_pd_strip_across_a_periodic_axis(tmp_path):
+    """260 steps at 625 m/s carry the strip 0.26 m, past half the period 0.4 at step 200.
+    Before reference positions moved with the wraps (`Domain.wrap_particles`), they followed
+    by a rule, x0 shifted by round((x - x0) / P) periods, which split the particles by
+    round-off where the displacement reached half a period: 26712 half-bonds broke and
+    velocities reached 1.5e5 m/s (measured, in process)."""
     scene = tmp_path / "strip.toml"
-    scene.write_text(SCENE)
+    scene.write_text(SCENE.replace("velocity = [150.0, 0.0]", "velocity = [625.0, 0.0]")
+                     .replace("end_time = 3.2e-4", "end_time = 4.16e-4")
+                     .replace("every = 3.2e-4", "every = 4.16e-4"))
     frames = {}
     for ranks in (1, 2, 4):
         out = tmp_path / f"n{ranks}"
         mpi_hpcmpm(ranks, "run", str(scene), "--out", str(out), "--quiet", "--force")
-        frames[ranks] = last_frame(out, 200, ranks)
+        frames[ranks] = last_frame(out, 260, ranks)
     ref = frames[1]
-    # 200 steps at 150 m/s carry the strip 0.048 m: its wrapped particles keep their bonds, or
-    # the broken families would pull (a bond missing across the face unbalances its end).
-    # 1e-8 of the velocity: forces are round-off of positions ~1e-16 m over bonds ~1e-2 m.
-    assert np.abs(ref["v"][:, 0] - 150.0).max() < 1e-8 * 150.0
-    assert np.abs(ref["v"][:, 1]).max() < 1e-8 * 150.0
+    # Its wrapped particles keep their bonds, or the broken families would pull (a bond
+    # missing across the face unbalances its end). 1e-8 of the velocity: forces are
+    # round-off of positions ~1e-16 m over bonds ~1e-2 m (measured 4e-13).
+    assert np.abs(ref["v"][:, 0] - 625.0).max() < 1e-8 * 625.0
+    assert np.abs(ref["v"][:, 1]).max() < 1e-8 * 625.0
     for ranks in (2, 4):
         for name in ("id", "x", "v"):
             assert np.array_equal(frames[ranks][name], ref[name]), f"{ranks} ranks: {name}"
@@ -104,9 +108,7 @@ def test_pd_strip_sheared_along_a_periodic_axis(tmp_path):
         frames[ranks] = last_frame(out, 50, ranks)
     ref = frames[1]
     # 50 steps: the halves slipped 8e-5 m against each other, a bond stretch of at most
-    # ~4e-3 at 0.01 m spacing, so none breaks (measured: damage 0). Rounding the turns down
-    # instead (np.floor) moves the reference position of every particle going to -x back by
-    # a period at its first step: measured damage 1.0.
+    # ~4e-3 at 0.01 m spacing, so none breaks (measured: damage 0).
     assert ref["damage"].max() == 0.0
     assert (ref["v"][:, 0] > 0).any() and (ref["v"][:, 0] < 0).any()
     for name in ("id", "x", "v", "damage"):

@@ -261,6 +261,14 @@ def test_wrap_keeps_inside_points_and_maps_the_upper_face_to_the_lower():
     hair = np.array([[-1.0 - 2.3e-16, 0.5]])
     domain.wrap(hair)
     assert -1.0 <= hair[0, 0] < 1.0
+    # Reference positions move with x by the same whole periods (L = 2), exactly: x - x0
+    # stays the displacement, 0.3 here, wherever the particle is.
+    x = np.array([[0.3, 0.5], [1.0, 0.5], [-1.0, 0.5], [1.75, 2.0], [-3.5, -1.0]])
+    x0 = x - 0.3
+    follow = x0.copy()
+    domain.wrap(x, follow)
+    np.testing.assert_array_equal(follow - x0, [[0, 0], [-2, 0], [0, 0], [-2, 0], [4, 0]])
+    assert np.abs((x - follow) - 0.3).max() < 1e-15
 
 
 

@@ -80,6 +80,59 @@ def test_converted_block_keeps_its_bonds_through_a_periodic_face():
     assert max(worst) < 1e-12 * 5.0
 
 
+CORNER = """
+[simulation]
+dim = 3
+domain = { lower = [0.0, 0.0, 0.0], upper = [1.0, 0.5, 0.5] }
+dx = 0.05
+transfer = "mls"
+end_time = 0.1
+periodic = ["x", "z"]
+[[materials]]
+name = "m"
+type = "linear_elastic"
+density = 1000.0
+E = 1.0e4
+nu = 0.3
+failure = { model = "spb", grid_energy = 1.0, bond_energy = 0.5 }
+"""
+CORNER_BODY = """
+[[bodies]]
+material = "m"
+shape = "box"
+lower = [%s, 0.1, %s]
+upper = [%s, 0.25, %s]
+velocity = [5.0, 0.0, 2.0]
+"""
+
+
+def test_block_across_a_corner_keeps_its_bonds_past_half_a_period():
+    """3D, periodic along x and z: a block straddling both faces (four boxes around the
+    corner) converts with the families of the same block inside the box (26080 half-bonds)
+    and moves rigidly at (5, 0, 2) m/s to t = 0.1, a displacement of exactly half the period
+    along x: no bond breaks. With reference positions following their particles by the rule
+    x0 += round((x - x0) / P) P, round-off split the particles at that step: 8638 half-bonds
+    broke and velocities changed by 0.19 m/s (measured)."""
+    def converted(boxes):
+        text = CORNER + "".join(CORNER_BODY % (a, c, b, d) for a, b, c, d in boxes)
+        scene = parse_scene(text, "corner.toml")
+        sim = Simulation(scene, make_domain(scene, Communicator()))
+        initial_particles(sim)
+        sim.extensions[0].convert_all = True
+        return sim
+
+    inside = converted([(0.3, 0.5, 0.2, 0.35)])
+    run(inside, 1e-3)
+    sim = converted([(0.9, 1.0, 0.45, 0.5), (0.0, 0.1, 0.45, 0.5), (0.9, 1.0, 0.0, 0.1),
+                     (0.0, 0.1, 0.0, 0.1)])
+    worst = []
+    run(sim, 0.1, lambda s: worst.append(np.abs(s.particles["v"] - [5.0, 0.0, 2.0]).max()))
+    ext = sim.extensions[0]
+    assert ext.pd_global == sim.particles.n == inside.particles.n
+    assert ext.bonds.n_bonds == inside.extensions[0].bonds.n_bonds and ext.broken == 0
+    assert max(worst) < 1e-12 * 5.0
+
+
 def test_block_converted_across_a_periodic_face_gets_full_families():
     """The same block straddling the face (x in [0.85, 1.15], as two bodies [0.85, 1] and
     [0, 0.15]) converts with as many half-bonds as inside the box, of the same lengths: its
