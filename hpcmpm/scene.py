@@ -850,6 +850,49 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
     return tuple(out)
 
 
+def collider_reach(spec: ColliderSpec) -> float:
+    """The farthest a bounded collider reaches from its centre in any orientation (its
+    bounding sphere): the radius of a sphere, the half-diagonal of a box, sqrt(r^2 + h^2) of
+    a cylinder."""
+    p = spec.params
+    if spec.shape == "sphere":
+        return float(p["radius"])
+    if spec.shape == "box":
+        return float(math.sqrt(sum(h * h for h in p["half_extents"])))
+    return float(math.hypot(p["radius"], p["half_length"]))
+
+
+def _check_periodic_colliders(c: Checker, colliders, periodic, lo, hi) -> None:
+    """A collider acts through its periodic images one period away (`Collider`): a bounded
+    one must reach less than half a period from its centre (its images would overlap), and a
+    half-space must be the same at both faces of a periodic axis (its normal perpendicular
+    to the axis, and not turning)."""
+    if not periodic or lo is None or hi is None:
+        return
+    for i, spec in enumerate(colliders):
+        p = f"colliders[{i}]"
+        for axis in periodic:
+            name, period = AXIS_NAMES[axis], float(hi[axis] - lo[axis])
+            if spec.shape == "half_space":
+                normal = spec.params["normal"]
+                if normal[axis] != 0.0:
+                    c.problem(f"{p}.normal", f"has a component along the periodic axis "
+                                             f"{name!r}: the half-space would differ at its two "
+                                             f"faces; make the normal perpendicular to {name!r}")
+                elif any(spec.angular_velocity) if isinstance(spec.angular_velocity, tuple) \
+                        else spec.angular_velocity:
+                    c.problem(f"{p}.angular_velocity", f"a turning half-space would come to "
+                                                       f"differ at the two faces of the "
+                                                       f"periodic axis {name!r}")
+                continue
+            reach = collider_reach(spec)
+            if 2.0 * reach >= period:
+                c.problem(p, f"reaches {reach:g} from its centre, half the period {period:g} "
+                             f"of the periodic axis {name!r} or more: its periodic images "
+                             f"would overlap (the domain must be wider than {2.0 * reach:g} "
+                             f"along {name!r})")
+
+
 def _prescribed(c: Checker, raw: dict, dim) -> tuple:
     out = []
     for i, t in enumerate(c.tables(raw, "prescribed", "")):
@@ -908,6 +951,7 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     walls = _walls(c, raw, dim)
     _check_periodic_walls(c, raw, sim["periodic"])
     colliders = _colliders(c, raw, dim)
+    _check_periodic_colliders(c, colliders, sim["periodic"], sim["domain_lo"], sim["domain_hi"])
     prescribed = _prescribed(c, raw, dim)
     entries = raw.get("materials")
     _check_with_material_instances(c, materials,

@@ -25,8 +25,17 @@ def build_boundaries(scene) -> list:
         n_cells = np.rint((np.asarray(scene.domain_hi) - np.asarray(scene.domain_lo))
                           / scene.dx).astype(np.int64)
         out.append(Walls(walls.faces, n_cells, getattr(scene, "periodic", ())))
-    out.extend(Collider(spec, scene.dim) for spec in getattr(scene, "colliders", ()))
+    out.extend(make_colliders(scene))
     return out
+
+
+def make_colliders(scene) -> list[Collider]:
+    """The scene's colliders, with the periods of its periodic axes (their images act)."""
+    lo, hi = np.asarray(scene.domain_lo, np.float64), np.asarray(scene.domain_hi, np.float64)
+    periods = np.zeros(scene.dim)
+    for axis in getattr(scene, "periodic", ()) or ():
+        periods[axis] = hi[axis] - lo[axis]
+    return [Collider(spec, scene.dim, periods, lo) for spec in getattr(scene, "colliders", ())]
 
 
 def build_prescribed(scene) -> list[PrescribedSet]:
@@ -35,4 +44,4 @@ def build_prescribed(scene) -> list[PrescribedSet]:
 
 
 __all__ = ["Collider", "PrescribedSet", "Walls", "build_boundaries", "build_prescribed",
-           "mark_prescribed_particles"]
+           "make_colliders", "mark_prescribed_particles"]

@@ -3,7 +3,9 @@
 A collider moves with constant linear velocity ``v`` and spins with constant angular velocity
 ``omega`` about its centre: centre ``c(t) = c0 + v t``, orientation ``R(t) = exp(t [omega]x) R0``
 (in 2D, a rotation by ``omega t`` about z), and the rigid velocity at ``x`` is
-``v + omega x (x - c(t))``. It acts only while ``start <= t <= end``. Grid nodes inside
+``v + omega x (x - c(t))``. It acts only while ``start <= t <= end``. Along periodic axes it
+acts through its images one period either way, from its centre brought into the domain: it
+acts across a face, and one that travels along the axis comes round again. Grid nodes inside
 (``phi <= 0``) get their velocity relative to the obstacle projected (`contact.project`,
 Stomakhin 2013 §8); so do off-grid particles (peridynamic bodies, 003 Alg. 2) whose position
 after the step would be inside (`Collider.apply_to_particles`), by the same point rule
@@ -17,6 +19,7 @@ vector), cylinder (3D, capped, axis = body z). 2D is the z = 0 plane of the 3D f
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -214,9 +217,15 @@ class Collider:
 
     name = "collider"
 
-    def __init__(self, spec, dim: int):
+    def __init__(self, spec, dim: int, periods=None, domain_lo=None):
         self.spec = spec
         self.dim = dim
+        # Periodic axes (period lengths, 0 elsewhere) of a domain starting at domain_lo: a
+        # bounded collider also acts through its images one period away (`_centres`).
+        self.periods = np.zeros(dim) if periods is None else \
+            np.asarray(periods, dtype=np.float64).reshape(dim)
+        self.period_lo = np.zeros(dim) if domain_lo is None else \
+            np.asarray(domain_lo, dtype=np.float64).reshape(dim)
         p = spec.params
         self.shape = SHAPES[spec.shape]
         self.condition = CONDITIONS[spec.condition]
@@ -260,6 +269,20 @@ class Collider:
     def active(self, t: float) -> bool:
         return self.start <= t <= self.end
 
+    def _centres(self, t: float) -> list[np.ndarray]:
+        """Where the collider acts at time t, as 3-vectors: its centre, and along periodic
+        axes the centre brought into the domain with its images one period either way (the
+        scene check keeps a bounded collider within half a period of its centre, so the
+        images do not overlap; a half-space there is the same at both faces: one is
+        enough). A collider that travels along a periodic axis comes round again."""
+        centre = self.position(t)
+        if self.shape == HALF_SPACE or not self.periods.any():
+            return [vec3(centre, self.dim)]
+        p, lo = self.periods, self.period_lo
+        inside = np.where(p > 0, lo + np.mod(centre - lo, np.where(p > 0, p, 1.0)), centre)
+        steps = [(0, -1, 1) if p[a] > 0 else (0,) for a in range(self.dim)]
+        return [vec3(inside + np.asarray(k) * p, self.dim) for k in itertools.product(*steps)]
+
     def level_set(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """phi (n,) and outward unit normal (n, dim) at world points x (n, dim), time t."""
         x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, self.dim)
@@ -302,13 +325,14 @@ class Collider:
         org = np.zeros(3, dtype=np.int64)
         org[:dim] = origin
         lo_x = vec3(domain_lo, dim)
-        centre, R = vec3(self.position(t_end), dim), self.rotation(t_end)
-        lo, hi = self._node_box(centre, R, org, dx, lo_x, np.array(v3.shape[:3]))
-        if np.any(hi <= lo):
-            return
-        project_collider(v3, m3, use_mass, lo, hi, org, float(dx), lo_x, self.shape, self.size,
-                         centre, R, self.velocity, self.omega, self.condition, self.friction,
-                         record, basis, count)
+        R = self.rotation(t_end)
+        for centre in self._centres(t_end):
+            lo, hi = self._node_box(centre, R, org, dx, lo_x, np.array(v3.shape[:3]))
+            if np.any(hi <= lo):
+                continue
+            project_collider(v3, m3, use_mass, lo, hi, org, float(dx), lo_x, self.shape,
+                             self.size, centre, R, self.velocity, self.omega, self.condition,
+                             self.friction, record, basis, count)
 
     def apply_to_particles(self, x: np.ndarray, v: np.ndarray, t: float, dt: float) -> int:
         """Off-grid particles x, v (n, dim) (peridynamic bodies, 003 Alg. 2): the velocity of
@@ -318,9 +342,10 @@ class Collider:
         t_end = t + dt
         if not self.active(t_end) or len(x) == 0:
             return 0
-        return project_collider_particles(
-            x, v, float(dt), self.shape, self.size, vec3(self.position(t_end), self.dim),
-            self.rotation(t_end), self.velocity, self.omega, self.condition, self.friction)
+        R = self.rotation(t_end)
+        return sum(project_collider_particles(
+            x, v, float(dt), self.shape, self.size, centre, R, self.velocity, self.omega,
+            self.condition, self.friction) for centre in self._centres(t_end))
 
     def _node_box(self, centre, R, origin, dx, domain_lo, shape):
         """Block-index box of the nodes that can be inside: the collider's world bounding

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..boundaries.colliders import Collider
+from ..boundaries import make_colliders
 from ..boundaries.contact import CONDITIONS, project
 
 
@@ -71,7 +71,7 @@ class ParticleColliders:
     (after the walls, as on the grid)."""
 
     def __init__(self, scene):
-        self.colliders = [Collider(spec, scene.dim) for spec in getattr(scene, "colliders", ())]
+        self.colliders = make_colliders(scene)
         self.hits = 0
 
     def apply(self, x, v, t: float, dt: float) -> int:

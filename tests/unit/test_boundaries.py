@@ -659,3 +659,75 @@ def test_off_grid_pd_beside_grid_bodies_is_warned_about(caplog):
     with caplog.at_level("WARNING", logger="hpcmpm"):
         simulate(load_scene("inputs/kalthoff_winkler_2d.toml"), end_time=1e-6)
     assert not [r for r in caplog.records if "pass through" in r.getMessage()]
+
+
+@pytest.mark.parametrize("t, centre0, velocity", [
+    (0.0, (0.02, 0.5), (0.0, 0.0)),       # straddles the face x = 0
+    (1.5, (0.52, 0.5), (1.0, 0.0)),       # travelled 1.5 periods: at 0.02 again
+])
+def test_collider_acts_through_its_periodic_images(t, centre0, velocity):
+    """Domain [0, 1]^2 periodic along x (dx = 0.025; the block holds nodes -2 .. 42 along x,
+    ghosts beyond both faces included): a sticky disk of radius 0.1 centred at x = 0.02 sets
+    the rigid velocity on exactly the nodes within 0.1 of its centre or of its image one
+    period away, on both sides of the face; one that has travelled out of the domain along
+    the periodic axis acts where it has come round to. Before, only the nodes near the
+    centre itself were (and none once it had left the domain)."""
+    dx, n = 0.025, 40
+    spec = collider_spec("sphere", {"center": centre0, "radius": 0.1}, velocity=velocity)
+    collider = Collider(spec, 2, periods=[1.0, 0.0], domain_lo=[0.0, 0.0])
+    origin = np.array([-2, 0])
+    shape = (n + 5, n + 1)
+    v = np.zeros(shape + (2,))
+    v[..., 1] = 1.0
+    collider.apply(v, origin, dx, np.zeros(2), t, 1e-12)
+    i, j = np.meshgrid(np.arange(shape[0]) + origin[0], np.arange(shape[1]), indexing="ij")
+    x, y = i * dx, j * dx
+    near = np.minimum.reduce([np.hypot(x - 0.02 - k, y - 0.5) for k in (-1.0, 0.0, 1.0)])
+    inside = near <= 0.1
+    assert inside[x < 0.5].any() and inside[x > 0.5].any()      # both sides of the face
+    np.testing.assert_allclose(v[inside], np.broadcast_to(velocity, v[inside].shape),
+                               atol=1e-12)
+    assert np.all(v[~inside] == [0.0, 1.0])
+
+
+def test_periodic_collider_scene_errors():
+    """On a periodic axis a collider reaching half the period would overlap its images, and
+    a half-space with a normal along the axis (or turning) differs at the two faces: one
+    line each, naming the key."""
+    from hpcmpm.errors import SceneError
+    from hpcmpm.scene import parse_scene
+
+    base = """
+[simulation]
+dim = 2
+domain = { lower = [0.0, 0.0], upper = [1.0, 1.0] }
+dx = 0.05
+end_time = 0.1
+periodic = ["x"]
+[[materials]]
+name = "m"
+type = "linear_elastic"
+density = 1.0
+E = 100.0
+nu = 0.3
+[[bodies]]
+material = "m"
+shape = "box"
+lower = [0.2, 0.2]
+upper = [0.4, 0.4]
+[[colliders]]
+"""
+    cases = [('shape = "sphere"\ncenter = [0.5, 0.5]\nradius = 0.5',
+              "colliders[0]: reaches 0.5 from its centre, half the period 1 of the periodic "
+              "axis 'x' or more"),
+             ('shape = "half_space"\npoint = [0.0, 0.1]\nnormal = [0.1, 1.0]',
+              "colliders[0].normal: has a component along the periodic axis 'x'"),
+             ('shape = "half_space"\npoint = [0.0, 0.1]\nnormal = [0.0, 1.0]\n'
+              'angular_velocity = 0.1',
+              "colliders[0].angular_velocity: a turning half-space")]
+    for entry, expect in cases:
+        with pytest.raises(SceneError) as err:
+            parse_scene(base + entry, "s.toml")
+        lines = str(err.value).splitlines()
+        assert len(lines) == 1 and expect in lines[0], lines
+    parse_scene(base + 'shape = "sphere"\ncenter = [0.02, 0.5]\nradius = 0.4', "s.toml")
