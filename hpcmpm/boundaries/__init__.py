@@ -31,16 +31,24 @@ def build_boundaries(scene) -> list:
 
 def make_colliders(scene) -> list[Collider]:
     """The scene's colliders, with the periods of its periodic axes (their images act)."""
-    lo, hi = np.asarray(scene.domain_lo, np.float64), np.asarray(scene.domain_hi, np.float64)
-    periods = np.zeros(scene.dim)
-    for axis in getattr(scene, "periodic", ()) or ():
-        periods[axis] = hi[axis] - lo[axis]
-    return [Collider(spec, scene.dim, periods, lo) for spec in getattr(scene, "colliders", ())]
+    return [Collider(spec, scene.dim, _periods(scene), scene.domain_lo)
+            for spec in getattr(scene, "colliders", ())]
 
 
 def build_prescribed(scene) -> list[PrescribedSet]:
     """One `PrescribedSet` per ``[[prescribed]]`` entry; its index is its position."""
-    return [PrescribedSet(spec, i, scene.dim) for i, spec in enumerate(scene.prescribed)]
+    periods = _periods(scene)
+    return [PrescribedSet(spec, i, scene.dim, periods)
+            for i, spec in enumerate(scene.prescribed)]
+
+
+def _periods(scene) -> np.ndarray:
+    """(dim,) period lengths of the scene's periodic axes, 0 elsewhere."""
+    lo, hi = np.asarray(scene.domain_lo, np.float64), np.asarray(scene.domain_hi, np.float64)
+    periods = np.zeros(scene.dim)
+    for axis in getattr(scene, "periodic", ()) or ():
+        periods[axis] = hi[axis] - lo[axis]
+    return periods
 
 
 __all__ = ["Collider", "PrescribedSet", "Walls", "build_boundaries", "build_prescribed",

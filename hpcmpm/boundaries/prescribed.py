@@ -70,19 +70,31 @@ def scatter_marks(x, prescribed, set_index, order, dx, domain_lo, origin, marks)
 
 
 @njit(cache=True)
-def impose_rigid_velocity(velocity, marks, origin, dx, domain_lo, centre, v_lin, omega):
+def _nearest(offset, period):
+    """``offset`` less the whole periods that bring it nearest to 0 (``period`` 0: as is)."""
+    if period > 0.0:
+        return offset - period * round(offset / period)
+    return offset
+
+
+@njit(cache=True)
+def impose_rigid_velocity(velocity, marks, origin, dx, domain_lo, centre, v_lin, omega,
+                          period):
     """Nodes with ``marks > 0`` get ``v + omega x (x - centre)``; velocity (n0, n1, n2, dim),
-    marks (n0, n1, n2); origin, domain_lo, centre, v_lin, omega (3,)."""
+    marks (n0, n1, n2); origin, domain_lo, centre, v_lin, omega (3,). Along a periodic axis
+    (``period`` (3,) lengths, 0 elsewhere) ``x - centre`` is the nearest image's: a set's
+    particles that wrapped across a face turn about the centre they left."""
     dim = velocity.shape[3]
     n0, n1, n2 = marks.shape
     for i in range(n0):
-        x0 = domain_lo[0] + (origin[0] + i) * dx - centre[0]
+        x0 = _nearest(domain_lo[0] + (origin[0] + i) * dx - centre[0], period[0])
         for j in range(n1):
-            x1 = domain_lo[1] + (origin[1] + j) * dx - centre[1]
+            x1 = _nearest(domain_lo[1] + (origin[1] + j) * dx - centre[1], period[1])
             for k in range(n2):
                 if marks[i, j, k] <= 0.0:
                     continue
-                x2 = (domain_lo[2] + (origin[2] + k) * dx - centre[2]) if dim == 3 else 0.0
+                x2 = _nearest(domain_lo[2] + (origin[2] + k) * dx - centre[2], period[2]) \
+                    if dim == 3 else 0.0
                 w0, w1, w2 = rigid_velocity(v_lin, omega, x0, x1, x2)
                 velocity[i, j, k, 0] = w0
                 velocity[i, j, k, 1] = w1
@@ -94,10 +106,12 @@ class PrescribedSet:
     """The particles initially inside ``region`` move rigidly: centre ``c(t) = center + v t``
     (``center`` defaults to the region's middle), angular velocity ``omega`` about it."""
 
-    def __init__(self, spec, index: int, dim: int):
+    def __init__(self, spec, index: int, dim: int, periods=None):
         self.spec = spec
         self.index = index
         self.dim = dim
+        # Period lengths of the periodic axes (0 elsewhere; `impose_rigid_velocity`).
+        self.periods = vec3(np.zeros(dim) if periods is None else periods, dim)
         self.lower = np.asarray(spec.region["lower"], dtype=np.float64)
         self.upper = np.asarray(spec.region["upper"], dtype=np.float64)
         centre = spec.center if spec.center is not None else (self.lower + self.upper) / 2
@@ -134,7 +148,7 @@ class PrescribedSet:
         org[: self.dim] = origin
         impose_rigid_velocity(block3(velocity, self.dim), block3(grid[self.mark_field], self.dim),
                               org, float(dx), vec3(domain_lo, self.dim), self.centre(t),
-                              self.velocity, self.omega)
+                              self.velocity, self.omega, self.periods)
 
     def constrain(self, velocity, origin, dx, domain_lo, t, dt, grid, basis, count) -> None:
         """Every node this set marked is fixed in all directions (the semi-implicit solve's
