@@ -145,6 +145,18 @@ class Scene:
     def material_index(self, name: str) -> int:
         return [m.name for m in self.materials].index(name)
 
+    def periods(self) -> list[tuple[int, float]]:
+        """(axis, period) of each periodic axis (`axis_periods`)."""
+        return axis_periods(self.periodic, self.domain_lo, self.domain_hi)
+
+
+def axis_periods(periodic, lo, hi) -> list[tuple[int, float]]:
+    """(axis, period) of each of the ``periodic`` axes of the domain [lo, hi); none while lo
+    or hi is unknown (a [simulation] table whose domain failed its check)."""
+    if lo is None or hi is None:
+        return []
+    return [(a, float(hi[a] - lo[a])) for a in periodic or ()]
+
 
 # -- the checker ------------------------------------------------------------------------------
 class Checker:
@@ -550,14 +562,6 @@ def _check_with_material_instances(c: Checker, materials, materials_complete: bo
 
 
 
-def _periods(sim: dict) -> list[tuple[int, float]]:
-    """(axis, period) of each periodic axis of a checked [simulation] table."""
-    lo, hi = sim["domain_lo"], sim["domain_hi"]
-    if lo is None or hi is None:
-        return []
-    return [(a, float(hi[a] - lo[a])) for a in sim["periodic"] or ()]
-
-
 def _check_output_fields(c: Checker, scene: Scene) -> None:
     """Each requested output field exists in this scene's particles (the writer would skip it
     silently otherwise): a core field, a field the scene declares (`particle_field_specs`,
@@ -862,17 +866,15 @@ def collider_reach(spec: ColliderSpec) -> float:
     return float(math.hypot(p["radius"], p["half_length"]))
 
 
-def _check_periodic_colliders(c: Checker, colliders, periodic, lo, hi) -> None:
+def _check_periodic_colliders(c: Checker, colliders, periods) -> None:
     """A collider acts through its periodic images one period away (`Collider`): a bounded
     one must reach less than half a period from its centre (its images would overlap), and a
     half-space must be the same at both faces of a periodic axis (its normal perpendicular
-    to the axis, and not turning)."""
-    if not periodic or lo is None or hi is None:
-        return
+    to the axis, and not turning). ``periods``: `axis_periods`."""
     for i, spec in enumerate(colliders):
         p = f"colliders[{i}]"
-        for axis in periodic:
-            name, period = AXIS_NAMES[axis], float(hi[axis] - lo[axis])
+        for axis, period in periods:
+            name = AXIS_NAMES[axis]
             if spec.shape == "half_space":
                 normal = spec.params["normal"]
                 if normal[axis] != 0.0:
@@ -951,13 +953,14 @@ def parse_scene(text: str, path: str = "<string>", overrides: Sequence[str] = ()
     walls = _walls(c, raw, dim)
     _check_periodic_walls(c, raw, sim["periodic"])
     colliders = _colliders(c, raw, dim)
-    _check_periodic_colliders(c, colliders, sim["periodic"], sim["domain_lo"], sim["domain_hi"])
+    periods = axis_periods(sim["periodic"], sim["domain_lo"], sim["domain_hi"])
+    _check_periodic_colliders(c, colliders, periods)
     prescribed = _prescribed(c, raw, dim)
     entries = raw.get("materials")
     _check_with_material_instances(c, materials,
                                    isinstance(entries, list) and len(entries) == len(materials),
                                    sim["transfer"], sim["integrator"], sim["dim"],
-                                   sim["volume_averaging"], _periods(sim),
+                                   sim["volume_averaging"], periods,
                                    sim["dx"] / sim["particles_per_cell"]
                                    if sim["dx"] and sim["particles_per_cell"] else None)
     if c.problems:

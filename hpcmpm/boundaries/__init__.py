@@ -43,11 +43,14 @@ def build_prescribed(scene) -> list[PrescribedSet]:
 
 
 def _periods(scene) -> np.ndarray:
-    """(dim,) period lengths of the scene's periodic axes, 0 elsewhere."""
-    lo, hi = np.asarray(scene.domain_lo, np.float64), np.asarray(scene.domain_hi, np.float64)
+    """(dim,) period lengths of the scene's periodic axes (`scene.axis_periods`), 0
+    elsewhere."""
+    from ..scene import axis_periods
+
     periods = np.zeros(scene.dim)
-    for axis in getattr(scene, "periodic", ()) or ():
-        periods[axis] = hi[axis] - lo[axis]
+    for axis, period in axis_periods(getattr(scene, "periodic", ()), scene.domain_lo,
+                                     scene.domain_hi):
+        periods[axis] = period
     return periods
 
 

@@ -100,9 +100,10 @@ def failure_scene_problems(materials, transfer: str, integrator: str, periods=()
     share, and (``periods``: (axis, period) of the periodic axes; ``spacing``: the particle
     spacing) a family radius that reaches half a period: a converted particle's family
     would then hold two images of one partner, which the conversions' bond search does not
-    build (pd/spb.py; a peridynamic material's families do). Deformation modes "F" and "L" both work: in mode "L" the re-transfer corrects
-    the stored L before the materials' state update, and eq. 6.10 divides tau by the
-    material's own volume ratio J where it carries no F (`shock`, `j2`)."""
+    build (pd/spb.py; a peridynamic material's families do). Deformation modes "F" and "L"
+    both work: in mode "L" the re-transfer corrects the stored L before the materials'
+    state update, and eq. 6.10 divides tau by the material's own volume ratio J where it
+    carries no F (`shock`, `j2`)."""
     groups = [g for g, m in enumerate(materials) if getattr(m, "failure", None)]
     if not groups:
         return []

@@ -166,8 +166,7 @@ class Peridynamic(Material):
         key = "horizon_length" if prm["horizon_length"] is not None else "horizon"
         radius = family_radius(horizon_length(spacing, prm["horizon"], prm["horizon_length"]),
                                spacing, prm["partial_volumes"])
-        for axis in getattr(scene, "periodic", ()) or ():
-            period = float(hi[axis] - lo[axis])
+        for axis, period in scene.periods():
             if period <= radius:
                 out.append(f"{key}: the family radius {radius:g} reaches across the period "
                            f"{period:g} of the periodic axis {'xyz'[axis]}: a particle would "

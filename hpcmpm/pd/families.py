@@ -234,6 +234,17 @@ def _inside(k2, rem, strict):
     return (k2 < rem) if strict else (k2 <= rem)
 
 
+def shift_into_box(x0, lo, period) -> np.ndarray:
+    """(n, d) whole-period shifts that bring points ``x0`` into the periodic box
+    [lo, lo + period) (period 0: that axis is left alone). A search for new bonds among
+    reference positions that follow their particles by whole periods brings them in first,
+    then adds `periodic_images` (SPB-MPM's conversions)."""
+    x0 = np.asarray(x0, dtype=np.float64)
+    periodic = np.asarray(period) > 0
+    safe = np.where(periodic, period, 1.0)
+    return np.where(periodic, -np.floor((x0 - lo) / safe) * safe, 0.0)
+
+
 def periodic_images(x0, lo, period, reach):
     """Images of points within ``reach`` of the faces of the periodic box [lo, lo + period)
     (period 0: not periodic). Returns (source rows (m,) int64, shifts (m, d))."""

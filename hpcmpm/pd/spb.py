@@ -24,7 +24,8 @@ What the engine calls, and when:
      it from the same bits; the end that already was PD sends the other end its half-bond.
      Along periodic axes the reference positions move with their particles' wraps by the
      same whole periods (`Domain.wrap_particles`), and the search brings them into the box
-     and adds images near its faces (periodic.py), so families reach across a face (radius
+     and adds images near its faces (families.shift_into_box, periodic_images), so families
+     reach across a face (radius
      below half the period: one image per partner, the scene check).
   3. PD evolution at x^ (Alg. 3 lines 3-21, corrected): K, F^PD = (sum w Y (x) X V) K^-1
      (K^-1 after the sum), sigma^PD from the particle's own material at F^PD (snow at
@@ -84,8 +85,8 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics, correspondence_rate)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
-from .families import family_radius, find_families, half_bonds_per_particle
-from .periodic import canonical_images
+from .families import (family_radius, find_families, half_bonds_per_particle,
+                       periodic_images, shift_into_box)
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
 from .load import add_bond_load, bond_cost
 from .moduli import equivalent_micromodulus, pmb_micromodulus
@@ -107,10 +108,8 @@ class SPBExtension(CheckpointedBonds):
         self.material = mats[0]          # names the bonds' checkpoint folder
         specs = [m.failure for m in mats]
         # parse_scene reports these already; a scene built in code meets them here.
-        lo, hi = np.asarray(sim.scene.domain_lo), np.asarray(sim.scene.domain_hi)
-        periods = [(a, float(hi[a] - lo[a])) for a in getattr(sim.scene, "periodic", ()) or ()]
         problems = failure_scene_problems(sim.materials, sim.scene.transfer,
-                                          sim.scene.integrator, periods,
+                                          sim.scene.integrator, sim.scene.periods(),
                                           sim.dx / sim.scene.particles_per_cell)
         if problems:
             raise SceneError([f"{sim.scene.path}: {key}: {what}" for key, what in problems])
@@ -349,22 +348,22 @@ class SPBExtension(CheckpointedBonds):
         g_rank = np.concatenate([np.full(len(every[r]["id"]), r) for r in others]
                                 or [np.empty(0, np.int64)])
         # Along periodic axes every reference position is brought into the box and the
-        # points near its faces get images (pd/periodic.py), so bonds reach across a face;
-        # the current positions move with the same shifts.
+        # points near its faces get images, so bonds reach across a face; the current
+        # positions move with the same shifts.
         x0_mine, x_mine = p["x0"][pd_rows], p["x"][pd_rows]
         period = sim.domain.period_lengths()
         lo = np.asarray(sim.domain_lo, np.float64)
         periodic = bool(period.any())
         if periodic:
-            shift, _, _ = canonical_images(lo, period, x0_mine, self.radius)
+            shift = shift_into_box(x0_mine, lo, period)
             x0_mine, x_mine = x0_mine + shift, x_mine + shift
-            shift, _, _ = canonical_images(lo, period, g_x0, self.radius)
+            shift = shift_into_box(g_x0, lo, period)
             g_x0, g_x = g_x0 + shift, g_x + shift
         # My PD particles within the search radius of some new particle (reference cells of
         # the radius: a neighbour is at most one cell away), or of an image of one.
         new_x0 = np.concatenate([x0_mine[is_new], g_x0])
         if periodic and len(new_x0):
-            _, src, img = canonical_images(lo, period, new_x0, self.radius)
+            src, img = periodic_images(new_x0, lo, period, self.radius)
             new_x0 = np.concatenate([new_x0, new_x0[src] + img])
         near = _near_cells(x0_mine, new_x0, self.radius) if len(new_x0) else \
             np.zeros(len(pd_rows), bool)
@@ -376,7 +375,7 @@ class SPBExtension(CheckpointedBonds):
         n_sel, n_pts = len(sel), len(pts_id)
         src = np.empty(0, np.int64)
         if periodic:
-            _, src, img = canonical_images(lo, period, pts_x0, self.radius)
+            src, img = periodic_images(pts_x0, lo, period, self.radius)
             pts_x0 = np.concatenate([pts_x0, pts_x0[src] + img])
             pts_x = np.concatenate([pts_x, pts_x[src] + img])
         fam = find_families(pts_x0, np.concatenate([pts_id, pts_id[src]]), n_sel,

@@ -1,6 +1,6 @@
-"""SPB-MPM on a periodic axis (hpcmpm/pd/spb.py, pd/periodic.py): a converted body keeps its
-bonds while it crosses a face, and a body converted across a face gets the families it would
-get away from one.
+"""SPB-MPM on a periodic axis (hpcmpm/pd/spb.py, Domain.wrap_particles): a converted body
+keeps its bonds while it crosses a face, and a body converted across a face gets the families
+it would get away from one.
 
 Before the reference positions of SPB particles followed their periodic wraps, and before
 the conversions' bond search saw images across the faces, a block of 96 particles (all PD
