@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from hpcmpm.parallel import Communicator
-from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain
+from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain, simulate
 from hpcmpm.scene import parse_scene
 from hpcmpm.simulation import Simulation
 
@@ -112,11 +112,7 @@ def test_turning_prescribed_set_crosses_a_periodic_face_rigidly():
     for periodic in (True, False):
         text = PRESCRIBED if periodic else PRESCRIBED.replace(
             'periodic = ["x"]\n', "").replace("upper = [1.0, 1.0] }", "upper = [2.0, 1.0] }")
-        scene = parse_scene(text, "turning.toml")
-        sim = Simulation(scene, make_domain(scene, Communicator()))
-        initial_particles(sim)
-        Runner(sim, None, RunOptions(out_dir=Path("."), end_time=0.1, quiet=True)).run()
-        p = sim.particles
+        p = simulate(parse_scene(text, "turning.toml"), 0.1).particles
         order = np.argsort(p["id"])
         runs[periodic] = (p["x"][order], p["v"][order])
     (x, v), (x_wide, v_wide) = runs[True], runs[False]
