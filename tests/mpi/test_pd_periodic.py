@@ -8,6 +8,7 @@ stretch) moves its particles in both directions: no bond breaks, 1 and 2 ranks a
 A strip 2 cells high, periodic along y too, checks that a family holding two images of one
 partner keeps each (bonds.image_label) on 1 and 2 ranks and through a restart."""
 
+import h5py
 import numpy as np
 
 from hpcmpm.io.checkpoint import latest_checkpoint
@@ -221,14 +222,27 @@ velocity = [3.0, -5.0]
 
 def test_spb_block_across_a_periodic_face_matches_across_rank_counts(tmp_path):
     """1 and 2 ranks: the same PD set and broken bonds (bitwise), positions and velocities
-    to round-off, while the converted block crosses the face x = 0."""
+    to round-off, while the converted block crosses the face x = 0. A restart on 2 ranks
+    from the checkpoint at step 100 (the block converted at steps 81-90: PD particles whose
+    reference positions followed them across the face, bonds that cross it) is bitwise the
+    uninterrupted run."""
     scene = tmp_path / "drop.toml"
     scene.write_text(SPB_DROP)
     frames = {}
     for ranks in (1, 2):
         out = tmp_path / f"n{ranks}"
-        mpi_hpcmpm(ranks, "run", str(scene), "--out", str(out), "--quiet", "--force")
+        extra = ["--checkpoint-every", "100"] if ranks == 2 else []
+        mpi_hpcmpm(ranks, "run", str(scene), "--out", str(out), "--quiet", "--force", *extra)
         frames[ranks] = last_frame(out, 120, ranks)
+    ckpt = tmp_path / "n2" / f"ckpt_{100:09d}.h5"
+    mpi_hpcmpm(2, "restart", str(ckpt), "--out", str(tmp_path / "restart"), "--quiet")
+    again = last_frame(tmp_path / "restart", 120, 2)
+    with h5py.File(ckpt, "r") as f:
+        converted = int((f["particles/model"][...] == 1).sum())
+    assert converted == len(again["id"])      # the checkpoint holds the converted block
+    assert {"x", "v", "F", "model", "damage", "EE"} <= again.keys()
+    for name in again:
+        assert np.array_equal(again[name], frames[2][name]), f"restart: {name}"
     ref, got = frames[1], frames[2]
     print(f"PD {int((ref['model'] == 1).sum())} of {len(ref['id'])}, damaged "
           f"{int((ref['damage'] > 0).sum())}")
