@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 
 from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch, near_a_face
-from .geometry import bond_vectors, norm3
+from .geometry import bond_vectors, norm3, stretched_past
 
 # det K below this fraction of (tr K / d)^d: the family does not span the space.
 DETACHED_RCOND = 1e-6
@@ -139,7 +139,7 @@ def correspondence_kinematics(x, x0, vol, offsets, slot, status, weight, s0, n_o
                 continue
             Yv[0], Yv[1], Yv[2], Xv[0], Xv[1], Xv[2] = bond_vectors(x, x0, p, q, dim)
             xl = norm3(Xv[0], Xv[1], Xv[2])
-            if (norm3(Yv[0], Yv[1], Yv[2]) - xl) / xl > s0:
+            if stretched_past(norm3(Yv[0], Yv[1], Yv[2]) - xl, xl, s0):
                 status[b] = 0
                 broken += 1
                 continue

@@ -41,6 +41,15 @@ def norm3(a, b, c):
 
 
 @njit(cache=True, error_model="numpy")
+def stretched_past(e, xl, s0):
+    """Whether a bond of extension e = |Y| - |X| and reference length xl > 0 has its stretch
+    e / |X| past s0 (003 eq. 4.8), tested as e > s0 |X|: no division in the bond loops,
+    whose divisions and square roots bound their speed (scripts/bench_pd.py). The same
+    (e, xl) at both ends of a bond give the same answer; s0 = inf breaks nothing."""
+    return e > s0 * xl
+
+
+@njit(cache=True, error_model="numpy")
 def weighted_volume_sums(x0, vol, offsets, slot, status, weight, n_owned, out):
     """out_p = sum over intact bonds of w_pq V_q (the damage denominator at set-up, 003 eq.
     4.8's phi = 1 - sum_active / sum_initial)."""
@@ -79,7 +88,7 @@ def break_stretched(x, x0, offsets, slot, status, s0, n_owned):
                 continue
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, slot[b], dim)
             xl = norm3(X0, X1, X2)
-            if (norm3(y0, y1, y2) - xl) / xl > s0:
+            if stretched_past(norm3(y0, y1, y2) - xl, xl, s0):
                 status[b] = 0
                 broken += 1
     return broken

@@ -38,7 +38,7 @@ from numba import njit
 
 from .clamp import (NO_CLAMP, NO_FACES, ghost_family, ghost_scratch, ghost_stretch_sums,
                     near_a_face)
-from .geometry import bond_vectors, norm3
+from .geometry import bond_vectors, norm3, stretched_past
 
 
 @njit(cache=True, error_model="numpy")
@@ -78,7 +78,7 @@ def lps_dilatation(x, x0, vol, offsets, slot, status, weight, m, s0, n_owned, th
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
             xl = norm3(X0, X1, X2)
             e = norm3(y0, y1, y2) - xl
-            if e / xl > s0:
+            if stretched_past(e, xl, s0):
                 status[b] = 0
                 broken += 1
                 continue
@@ -95,22 +95,36 @@ def shear_coefficient(mu, dim):
 
 
 @njit(cache=True, error_model="numpy")
-def _scalar_force(theta, m, e, xl, kappa, alpha_m, dim):
-    """t of one end (without w): (d kappa theta/m)|X| + (alpha_m/m) (e - theta |X|/d)."""
+def _end_coefficients(theta, m, kappa, alpha_m, dim):
+    """(g, k) of one end of a bond: its scalar force state (without w)
+    t = (d kappa theta/m)|X| + (alpha_m/m) (e - theta |X|/d) = g |X| + k e, with
+    g = d kappa theta/m - (alpha_m/m) theta/d and k = alpha_m/m; (0, 0) where m <= 0.
+    Per point, not per bond: the bond loops then divide once a bond (by |Y|)."""
     if m <= 0.0:
-        return 0.0
-    return (dim * kappa * theta / m) * xl + (alpha_m / m) * (e - theta * xl / dim)
+        return 0.0, 0.0
+    k = alpha_m / m
+    return dim * kappa * theta / m - k * theta / dim, k
 
 
 @njit(cache=True, error_model="numpy")
-def _pair(x, x0, vol, p, q, dim, w, m, theta, kappa, alpha_m):
-    """(a, Y): the force on p from the bond p-q is a Y; t_p + t_q is symmetric in p, q."""
+def end_coefficients(theta, m, kappa, alpha_m, dim):
+    """`_end_coefficients` of every point (owned + halo rows): arrays (g, k)."""
+    n = theta.shape[0]
+    g = np.empty(n)
+    k = np.empty(n)
+    for p in range(n):
+        g[p], k[p] = _end_coefficients(theta[p], m[p], kappa, alpha_m, dim)
+    return g, k
+
+
+@njit(cache=True, error_model="numpy")
+def _pair(x, x0, vol, p, q, dim, w, g, k):
+    """(a, Y): the force on p from the bond p-q is a Y, a = w (t_p + t_q) V_p V_q / |Y| with
+    t_p + t_q = (g_p + g_q)|X| + (k_p + k_q) e (`_end_coefficients`), symmetric in p, q."""
     y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
     xl = norm3(X0, X1, X2)
     yl = norm3(y0, y1, y2)
-    e = yl - xl
-    t = (_scalar_force(theta[p], m[p], e, xl, kappa, alpha_m, dim)
-         + _scalar_force(theta[q], m[q], e, xl, kappa, alpha_m, dim))
+    t = (g[p] + g[q]) * xl + (k[p] + k[q]) * (yl - xl)
     return w * t * (vol[p] * vol[q]) / yl, y0, y1, y2
 
 
@@ -119,15 +133,14 @@ def lps_bond_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, 
                     out):
     """The per-half-bond terms of `lps_forces`, out (nb, d) (verification)."""
     dim = x.shape[1]
-    alpha_m = shear_coefficient(mu, dim)
+    g, k = end_coefficients(theta, m, kappa, shear_coefficient(mu, dim), dim)
     for p in range(n_owned):
         for b in range(offsets[p], offsets[p + 1]):
             for i in range(dim):
                 out[b, i] = 0.0
             if status[b] == 0:
                 continue
-            a, y0, y1, y2 = _pair(x, x0, vol, p, slot[b], dim, weight[b], m, theta, kappa,
-                                  alpha_m)
+            a, y0, y1, y2 = _pair(x, x0, vol, p, slot[b], dim, weight[b], g, k)
             out[b, 0] = a * y0
             out[b, 1] = a * y1
             if dim == 3:
@@ -138,7 +151,7 @@ def lps_bond_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, 
 def lps_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, mu, n_owned, f):
     """f_p = sum_q w (t_p + t_q) V_p V_q Y/|Y| over intact bonds; m, theta of owned + halo."""
     dim = x.shape[1]
-    alpha_m = shear_coefficient(mu, dim)
+    g, k = end_coefficients(theta, m, kappa, shear_coefficient(mu, dim), dim)
     for p in range(n_owned):
         f0 = 0.0
         f1 = 0.0
@@ -146,8 +159,7 @@ def lps_forces(x, x0, vol, offsets, slot, status, weight, m, theta, kappa, mu, n
         for b in range(offsets[p], offsets[p + 1]):
             if status[b] == 0:
                 continue
-            a, y0, y1, y2 = _pair(x, x0, vol, p, slot[b], dim, weight[b], m, theta, kappa,
-                                  alpha_m)
+            a, y0, y1, y2 = _pair(x, x0, vol, p, slot[b], dim, weight[b], g, k)
             f0 += a * y0
             f1 += a * y1
             f2 += a * y2
@@ -241,8 +253,9 @@ def lps_clamp_terms(x, x0, vol, offsets, slot, status, m, theta, theta_image, ka
                     ed = e - theta[p] * xl / dim
                     f[p, 0] += 0.5 * alpha_m / m[p] * GW[g] * ed * ed * vol[q]
                     continue
-                t = (_scalar_force(theta[p], m[p], e, xl, kappa, alpha_m, dim)
-                     + _scalar_force(theta_image[q, fc], m[q], e, xl, kappa, alpha_m, dim))
+                gp, kp = _end_coefficients(theta[p], m[p], kappa, alpha_m, dim)
+                gq, kq = _end_coefficients(theta_image[q, fc], m[q], kappa, alpha_m, dim)
+                t = (gp + gq) * xl + (kp + kq) * e
                 a = GW[g] * t * (vol[p] * vol[q]) / yl
                 for i in range(dim):
                     f[p, i] += a * GY[g, i]

@@ -27,17 +27,19 @@ import numpy as np
 from numba import njit
 
 from .clamp import NO_CLAMP, NO_FACES, ghost_family, ghost_scratch, near_a_face
-from .geometry import bond_vectors, norm3
+from .geometry import bond_vectors, norm3, stretched_past
 
 
 @njit(cache=True, error_model="numpy")
 def _pair(x, x0, vol, p, q, dim, c, w):
-    """(a, y0, y1, y2, s): the force on p from the bond is a * Y."""
+    """(a, y0, y1, y2, e, xl): the force on p from the bond is a * Y, with
+    a = c s w V_p V_q / |Y| = c w V_p V_q e / (|X| |Y|), e = |Y| - |X|: one division a bond
+    (the stretch's and the unit vector's in one; they bound the loop's speed)."""
     y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
     yl = norm3(y0, y1, y2)
     xl = norm3(X0, X1, X2)
-    s = (yl - xl) / xl
-    return c * s * w * (vol[p] * vol[q]) / yl, y0, y1, y2, s
+    e = yl - xl
+    return c * w * (vol[p] * vol[q]) * e / (xl * yl), y0, y1, y2, e, xl
 
 
 @njit(cache=True, error_model="numpy")
@@ -59,8 +61,8 @@ def pmb_forces(x, x0, vol, offsets, slot, status, weight, c, s0, n_owned, f):
                 status[b] = 0
                 broken += 1
                 continue
-            a, y0, y1, y2, s = _pair(x, x0, vol, p, slot[b], dim, c, weight[b])
-            if s > s0:
+            a, y0, y1, y2, e, xl = _pair(x, x0, vol, p, slot[b], dim, c, weight[b])
+            if stretched_past(e, xl, s0):
                 status[b] = 0
                 broken += 1
                 continue
@@ -85,7 +87,7 @@ def pmb_bond_forces(x, x0, vol, offsets, slot, status, weight, c, n_owned, out):
                 out[b, a] = 0.0
             if status[b] == 0:
                 continue
-            a_, y0, y1, y2, s = _pair(x, x0, vol, p, slot[b], dim, c, weight[b])
+            a_, y0, y1, y2, _, _ = _pair(x, x0, vol, p, slot[b], dim, c, weight[b])
             out[b, 0] = a_ * y0
             out[b, 1] = a_ * y1
             if dim == 3:

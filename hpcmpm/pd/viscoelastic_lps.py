@@ -64,7 +64,7 @@ from numba import njit
 
 from .clamp import (NO_CLAMP, NO_FACES, attach_ghost_store, ghost_arrays, ghost_at, ghost_bond,
                     image_length, near_a_face)
-from .geometry import bond_vectors, norm3
+from .geometry import bond_vectors, norm3, stretched_past
 from .lps import shear_coefficient
 
 MEMORIES = ("maxwell", "none")
@@ -121,7 +121,7 @@ def ve_dilatation(x, x0, vol, offsets, slot, status, weight, ref_len, s0, n_owne
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
             xl = norm3(X0, X1, X2)
             yl = norm3(y0, y1, y2)
-            if (yl - xl) / xl > s0:
+            if stretched_past(yl - xl, xl, s0):
                 status[b] = 0
                 broken += 1
                 continue
