@@ -156,14 +156,25 @@ def plastic_return(E_dev, k, xl, psi_p):
     return xl * (E_dev - (r if E_dev > 0.0 else -r)) / k
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _lengths(y0, y1, y2, X0, X1, X2):
+    """(|Y|, |X|, 1/|X|, s = |Y|/|X| - 1) of a bond: the bond loops divide by |X| once
+    (their divisions and square roots bound their speed, as in pmb.py); the same numbers at
+    both ends of a bond."""
+    yl = norm3(y0, y1, y2)
+    xl = norm3(X0, X1, X2)
+    inv_xl = 1.0 / xl
+    return yl, xl, inv_xl, yl * inv_xl - 1.0
+
+
 @njit(cache=True, error_model="numpy")
-def _bar_term(Fb0, Fb1, Fb2, xl, ep, act, plastic, s):
+def _bar_term(Fb0, Fb1, Fb2, inv_xl, ep, act, plastic, s):
     """(|Ybar|/|X| - 1 - e_p) dir(Ybar) (eq. 5.6), or (s - e_p) dir(Ybar) (eq. 5.9, plastic),
-    times the point's active flag."""
+    times the point's active flag; ``inv_xl`` = 1/|X| (`_lengths`)."""
     if act == 0.0:
         return 0.0, 0.0, 0.0
     n = norm3(Fb0, Fb1, Fb2)
-    c = ((s if plastic else n / xl - 1.0) - ep) / n
+    c = ((s if plastic else n * inv_xl - 1.0) - ep) / n
     return c * Fb0, c * Fb1, c * Fb2
 
 
@@ -186,14 +197,12 @@ def bond_energy_forces(x, x0, vol, offsets, slot, status, weight, F, active, eis
                 continue
             q = slot[b]
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
-            xl = norm3(X0, X1, X2)
-            yl = norm3(y0, y1, y2)
-            s = yl / xl - 1.0
+            yl, xl, inv_xl, s = _lengths(y0, y1, y2, X0, X1, X2)
             wb = beta * weight[b]
             ep = e_p[b] if plastic else 0.0     # an elastic body keeps no plastic stretch
             if plastic:
                 e_dev = s - 0.5 * (eiso[p] + eiso[q])
-                dep = plastic_return(wb * stiff * (e_dev - ep) / xl, wb * stiff, xl, psi_p)
+                dep = plastic_return(wb * stiff * (e_dev - ep) * inv_xl, wb * stiff, xl, psi_p)
                 # Dissipation: a return that would lengthen the elastic stretch s - e_p (and
                 # so store energy in the bond) is not taken (module docstring).
                 if abs(s - ep - dep) <= abs(s - ep):
@@ -202,10 +211,10 @@ def bond_energy_forces(x, x0, vol, offsets, slot, status, weight, F, active, eis
                     e_p[b] = ep
             pb0, pb1, pb2 = _apply(F, p, X0, X1, X2, dim)
             qb0, qb1, qb2 = _apply(F, q, X0, X1, X2, dim)
-            u0, u1, u2 = _bar_term(pb0, pb1, pb2, xl, ep, active[p], plastic, s)
-            v0, v1, v2 = _bar_term(qb0, qb1, qb2, xl, ep, active[q], plastic, s)
-            c_mu = 2.0 * mu * wb / xl * (vol[p] * vol[q])
-            c_lam = 2.0 * lam * wb / xl * (s - ep) / yl * (vol[p] * vol[q])
+            u0, u1, u2 = _bar_term(pb0, pb1, pb2, inv_xl, ep, active[p], plastic, s)
+            v0, v1, v2 = _bar_term(qb0, qb1, qb2, inv_xl, ep, active[q], plastic, s)
+            c_mu = 2.0 * mu * wb * inv_xl * (vol[p] * vol[q])
+            c_lam = 2.0 * lam * wb * inv_xl * (s - ep) / yl * (vol[p] * vol[q])
             f0 += c_mu * (u0 + v0) + c_lam * y0
             f1 += c_mu * (u1 + v1) + c_lam * y1
             f2 += c_mu * (u2 + v2) + c_lam * y2
@@ -227,15 +236,14 @@ def bond_energy_density(x, x0, vol, offsets, slot, status, weight, F, active, e_
                 continue
             q = slot[b]
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
-            xl = norm3(X0, X1, X2)
-            s = norm3(y0, y1, y2) / xl - 1.0
+            _, _, inv_xl, s = _lengths(y0, y1, y2, X0, X1, X2)
             sb = 0.0
             if plastic:
                 s -= e_p[b]
                 sb = s
             elif active[p] != 0.0:
                 pb0, pb1, pb2 = _apply(F, p, X0, X1, X2, dim)
-                sb = norm3(pb0, pb1, pb2) / xl - 1.0
+                sb = norm3(pb0, pb1, pb2) * inv_xl - 1.0
             s_w += beta * weight[b] * (mu * sb * sb + 0.5 * lam * s * s) * vol[q]
         out[p] = s_w
 
@@ -283,16 +291,14 @@ def bond_energy_clamp_terms(x, x0, vol, offsets, slot, status, F, active, eiso, 
                 q, w = ghost_at(x, x0, offsets, slot, status, p, k, axis, plane, clamp, Y, X)
                 if w == 0.0:
                     continue
-                xl = norm3(X[0], X[1], X[2])
-                yl = norm3(Y[0], Y[1], Y[2])
-                s = yl / xl - 1.0
+                yl, xl, inv_xl, s = _lengths(Y[0], Y[1], Y[2], X[0], X[1], X[2])
                 wb = beta * w
                 ep = 0.0
                 if plastic:
                     ep = mirror_ep[fc][k + shift[p]]
                 if plastic and not energy:
                     e_dev = s - 0.5 * (eiso[p] + eiso_image[q, fc])
-                    dep = plastic_return(wb * stiff * (e_dev - ep) / xl, wb * stiff, xl,
+                    dep = plastic_return(wb * stiff * (e_dev - ep) * inv_xl, wb * stiff, xl,
                                          psi_p)
                     if abs(s - ep - dep) <= abs(s - ep):     # dissipation (module docstring)
                         ep += dep
@@ -302,14 +308,14 @@ def bond_energy_clamp_terms(x, x0, vol, offsets, slot, status, F, active, eiso, 
                 if energy:
                     sb = s - ep
                     if not plastic:
-                        sb = norm3(pb0, pb1, pb2) / xl - 1.0 - ep if active[p] != 0.0 else 0.0
+                        sb = norm3(pb0, pb1, pb2) * inv_xl - 1.0 - ep if active[p] != 0.0 else 0.0
                     f0 += wb * (mu * sb * sb + 0.5 * lam * (s - ep) * (s - ep)) * vol[q]
                     continue
                 qb0, qb1, qb2 = _ghost_apply(F, q, X, axis, dim)
-                u0, u1, u2 = _bar_term(pb0, pb1, pb2, xl, ep, active[p], plastic, s)
-                v0, v1, v2 = _bar_term(qb0, qb1, qb2, xl, ep, active[q], plastic, s)
-                c_mu = 2.0 * mu * wb / xl * (vol[p] * vol[q])
-                c_lam = 2.0 * lam * wb / xl * (s - ep) / yl * (vol[p] * vol[q])
+                u0, u1, u2 = _bar_term(pb0, pb1, pb2, inv_xl, ep, active[p], plastic, s)
+                v0, v1, v2 = _bar_term(qb0, qb1, qb2, inv_xl, ep, active[q], plastic, s)
+                c_mu = 2.0 * mu * wb * inv_xl * (vol[p] * vol[q])
+                c_lam = 2.0 * lam * wb * inv_xl * (s - ep) / yl * (vol[p] * vol[q])
                 f0 += c_mu * (u0 + v0) + c_lam * Y[0]
                 f1 += c_mu * (u1 + v1) + c_lam * Y[1]
                 f2 += c_mu * (u2 + v2) + c_lam * Y[2]
@@ -333,9 +339,9 @@ def yield_values(x, x0, offsets, slot, status, weight, eiso, e_p, beta, lam, mu,
                 continue
             q = slot[b]
             y0, y1, y2, X0, X1, X2 = bond_vectors(x, x0, p, q, dim)
-            xl = norm3(X0, X1, X2)
-            e_dev = norm3(y0, y1, y2) / xl - 1.0 - 0.5 * (eiso[p] + eiso[q])
-            E = beta * weight[b] * stiff * (e_dev - e_p[b]) / xl
+            _, _, inv_xl, s = _lengths(y0, y1, y2, X0, X1, X2)
+            e_dev = s - 0.5 * (eiso[p] + eiso[q])
+            E = beta * weight[b] * stiff * (e_dev - e_p[b]) * inv_xl
             out[b] = 0.5 * E * E - psi_p
 
 
