@@ -243,11 +243,24 @@ def ve_clamp_initial_lengths(x0, offsets, slot, status, n_owned, faces, clamp, g
 
 
 @njit(cache=True, error_model="numpy")
-def _increments(theta, m, de, r, kappa, alpha_m, dim):
-    """(isotropic, deviatoric) scalar force increments of one end (without w)."""
+def _end_rates(theta, m, kappa, alpha_m, dim):
+    """(ci, cd, ct) of one end: its (isotropic, deviatoric) scalar force increments (without
+    w) are ((d kappa theta/m) r, (alpha_m/m)(de - theta r/d)) = (ci r, cd de - ct r), with
+    ci = d kappa theta/m, cd = alpha_m/m, ct = cd theta/d; zero where m <= 0. Per point, so
+    the bond loop divides once a bond (as lps.end_coefficients)."""
     if m <= 0.0:
-        return 0.0, 0.0
-    return (dim * kappa * theta / m) * r, (alpha_m / m) * (de - theta * r / dim)
+        return 0.0, 0.0, 0.0
+    cd = alpha_m / m
+    return dim * kappa * theta / m, cd, cd * theta / dim
+
+
+@njit(cache=True, error_model="numpy")
+def _end_rate_arrays(theta, m, kappa, alpha_m, dim):
+    """`_end_rates` of every point (owned + halo rows): arrays (n, 3)."""
+    out = np.empty((theta.shape[0], 3))
+    for p in range(theta.shape[0]):
+        out[p, 0], out[p, 1], out[p, 2] = _end_rates(theta[p], m[p], kappa, alpha_m, dim)
+    return out
 
 
 @njit(cache=True, error_model="numpy")
@@ -262,6 +275,7 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
     (verification). With clamping ``faces``, p's ghost bonds too (`_ghost_forces`)."""
     dim = x.shape[1]
     alpha_m = shear_coefficient(mu, dim)
+    c = _end_rate_arrays(theta, m, kappa, alpha_m, dim)
     acc = np.empty(3)
     X = np.empty(3)
     Y = np.empty(3)
@@ -277,15 +291,17 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
             yl = norm3(y0, y1, y2)
             r = ref_len[b]
             de = yl - r
-            ip, dp = _increments(theta[p], m[p], de, r, kappa, alpha_m, dim)
-            iq, dq = _increments(theta[q], m[q], de, r, kappa, alpha_m, dim)
+            # Both ends' increments summed: (ci_p + ci_q) r and (cd_p + cd_q) de -
+            # (ct_p + ct_q) r, symmetric in p and q.
+            inc_i = (c[p, 0] + c[q, 0]) * r
+            inc_d = (c[p, 1] + c[q, 1]) * de - (c[p, 2] + c[q, 2]) * r
             w = weight[b]
             if memory_none:
-                si = w * (ip + iq)
-                sd = w * (dp + dq)
+                si = w * inc_i
+                sd = w * inc_d
             else:
-                si = s_iso[b] + w * (ip + iq)
-                sd = decay * s_dev[b] + gain * (w * (dp + dq))
+                si = s_iso[b] + w * inc_i
+                sd = decay * s_dev[b] + gain * (w * inc_d)
             if commit:
                 if not memory_none:
                     s_iso[b] = si
@@ -335,14 +351,16 @@ def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
         yl = norm3(Y[0], Y[1], Y[2])
         r = _gget(ghost, fc, MIRROR_LEN, shift, p, k)
         de = yl - r
-        ip, dp = _increments(theta[p], m[p], de, r, kappa, alpha_m, dim)
-        iq, dq = _increments(theta_image[q, fc], m_image[q, fc], de, r, kappa, alpha_m, dim)
+        ci_p, cd_p, ct_p = _end_rates(theta[p], m[p], kappa, alpha_m, dim)
+        ci_q, cd_q, ct_q = _end_rates(theta_image[q, fc], m_image[q, fc], kappa, alpha_m, dim)
+        inc_i = (ci_p + ci_q) * r
+        inc_d = (cd_p + cd_q) * de - (ct_p + ct_q) * r
         if memory_none:
-            si = w * (ip + iq)
-            sd = w * (dp + dq)
+            si = w * inc_i
+            sd = w * inc_d
         else:
-            si = _gget(ghost, fc, MIRROR_ISO, shift, p, k) + w * (ip + iq)
-            sd = decay * _gget(ghost, fc, MIRROR_DEV, shift, p, k) + gain * (w * (dp + dq))
+            si = _gget(ghost, fc, MIRROR_ISO, shift, p, k) + w * inc_i
+            sd = decay * _gget(ghost, fc, MIRROR_DEV, shift, p, k) + gain * (w * inc_d)
         a = (si + sd) * (vol[p] * vol[q]) / yl
         for i in range(dim):
             acc[i] += a * Y[i]
