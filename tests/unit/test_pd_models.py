@@ -93,3 +93,52 @@ def test_detached_correspondence_point_carries_no_stress():
     # The only force on 0 comes from its partner's side of the one bond.
     terms = bond_terms(body)
     assert np.array_equal(body.force[0], terms[keep])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_lps_pair_terms_match_the_force_state_written_out(dim):
+    """The LPS kernels fold each end's scalar force state into per-point coefficients
+    (lps.end_coefficients); the pair terms must equal the force state as the issue writes
+    it, evaluated here with numpy from the bond lists alone: m_p = sum w |X|^2 V_q,
+    theta_p = (d/m_p) sum w |X| e V_q, t_p = (d kappa theta_p/m_p)|X| + (alpha_m/m_p)(e -
+    theta_p |X|/d), term = w (t_p + t_q) V_p V_q Y/|Y|, at a non-affine state. rtol 1e-12:
+    the same quantities rounded and summed in another order (measured: 4.4e-16 of the
+    largest term in 2D, 3.5e-16 in 3D). Fails with a sign slip in the coefficients."""
+    body = random_body(dim, "lps", seed=3)
+    body.compute_forces()
+    b, pts, model = body.pts.bonds, body.pts, body.model
+    owner = np.repeat(np.arange(b.n), b.counts())
+    q = b.slot
+    X = pts.x0[q] - pts.x0[owner]
+    Y = pts.x[q] - pts.x[owner]
+    xl, yl = np.linalg.norm(X, axis=1), np.linalg.norm(Y, axis=1)
+    e = yl - xl
+    wv = b.weight * pts.vol[q]
+    m = np.bincount(owner, wv * xl ** 2, b.n)
+    theta = dim / m * np.bincount(owner, wv * xl * e, b.n)
+    alpha_m = (15.0 if dim == 3 else 8.0) * model.mu
+    t = lambda k: (dim * model.kappa * theta[k] / m[k]) * xl + \
+        (alpha_m / m[k]) * (e - theta[k] * xl / dim)  # noqa: E731
+    want = (b.weight * (t(owner) + t(q)) * pts.vol[owner] * pts.vol[q] / yl)[:, None] * Y
+    got = bond_terms(body)
+    assert np.abs(theta).max() > 1e-3                   # a deformed, non-affine state
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_pmb_pair_terms_match_the_pair_force_written_out(dim):
+    """PMB divides once a bond (a = c w V_p V_q e / (|X| |Y|)); the terms must equal the
+    pair force as 003 eq. 4.3 (corrected) writes it, c s w V_p V_q Y/|Y| with
+    s = (|Y| - |X|)/|X|, evaluated with numpy. rtol 1e-13: a few roundings apart
+    (measured: 2.7e-16 of the largest term in 2D, 2.4e-16 in 3D)."""
+    body = random_body(dim, "pmb", seed=4)
+    body.compute_forces()
+    b, pts = body.pts.bonds, body.pts
+    owner = np.repeat(np.arange(b.n), b.counts())
+    X = pts.x0[b.slot] - pts.x0[owner]
+    Y = pts.x[b.slot] - pts.x[owner]
+    xl, yl = np.linalg.norm(X, axis=1), np.linalg.norm(Y, axis=1)
+    s = (yl - xl) / xl
+    want = (body.model.c * s * b.weight * pts.vol[owner] * pts.vol[b.slot] / yl)[:, None] * Y
+    got = bond_terms(body)
+    np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13 * np.abs(want).max())
