@@ -16,59 +16,10 @@ from hpcmpm.parallel import Communicator
 from hpcmpm.runner import simulate
 from hpcmpm.scene import parse_scene
 from mpi_helpers import gather_by_id
+from periodic_layer_scenes import disk_in_flow, turning_set
 
-DISK = """
-[simulation]
-dim = 2
-domain = { lower = [0.0, 0.0], upper = [1.0, 1.0] }
-dx = 0.025
-transfer = "mls"
-end_time = 0.05
-max_dt = 1e-3
-periodic = ["x"]
-[[materials]]
-name = "m"
-type = "neo_hookean"
-density = 1.0
-E = 100.0
-nu = 0.3
-[[bodies]]
-material = "m"
-shape = "box"
-lower = [0.0, 0.2]
-upper = [1.0, 0.8]
-velocity = [1.0, 0.0]
-[[colliders]]
-shape = "sphere"
-center = [0.0, 0.5]
-radius = 0.1013
-"""
-
-TURNING = """
-[simulation]
-dim = 2
-domain = { lower = [0.0, 0.0], upper = [1.0, 1.0] }
-dx = 0.025
-transfer = "mls"
-end_time = 0.1
-max_dt = 2e-3
-periodic = ["x"]
-[[materials]]
-name = "m"
-type = "neo_hookean"
-density = 1.0
-E = 100.0
-nu = 0.3
-[[bodies]]
-material = "m"
-shape = "box"
-lower = [0.7, 0.45]
-upper = [0.9, 0.55]
-[[prescribed]]
-region = { lower = [0.7, 0.45], upper = [0.9, 0.55] }
-velocity = [2.0, 0.0]
-angular_velocity = 3.0
-"""
+DISK = disk_in_flow(0.0, max_dt=1e-3)   # the disk centred on the face x = 0
+TURNING = turning_set(0.45, 0.55)       # longer in x than in y: the bisection cuts x
 
 
 def run(text: str, comm) -> dict:

@@ -16,40 +16,12 @@ from hpcmpm.parallel import Communicator
 from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain, simulate
 from hpcmpm.scene import parse_scene
 from hpcmpm.simulation import Simulation
-
-SCENE = """
-[simulation]
-dim = 2
-domain = {{ lower = [0.0, 0.0], upper = [1.0, 1.0] }}
-dx = 0.025
-transfer = "mls"
-end_time = 0.05
-periodic = ["x"]
-[[materials]]
-name = "m"
-type = "neo_hookean"
-density = 1.0
-E = 100.0
-nu = 0.3
-[[bodies]]
-material = "m"
-shape = "box"
-lower = [0.0, 0.2]
-upper = [1.0, 0.8]
-velocity = [1.0, 0.0]
-[[colliders]]
-shape = "sphere"
-center = [{cx}, 0.5]
-radius = 0.1013
-"""
-# The radius keeps every grid node off the disk's surface, where round-off of the node
-# positions (0.6 - 0.5 against 0.1 - 0.0) would decide inside or outside differently.
-
+from periodic_layer_scenes import disk_in_flow, turning_set
 
 def flow_past(cx: float):
     """Velocities after 0.05 s by the particle's start position, shifted so that the disk
     sits at x = 0.5: {(x mod 1, y) rounded to 1e-9: v}."""
-    scene = parse_scene(SCENE.format(cx=cx), "disk.toml")
+    scene = parse_scene(disk_in_flow(cx), "disk.toml")
     sim = Simulation(scene, make_domain(scene, Communicator()))
     initial_particles(sim)
     start = {int(i): x.copy() for i, x in zip(sim.particles["id"], sim.particles["x"])}
@@ -74,31 +46,7 @@ def test_disk_across_a_periodic_face_acts_as_one_inside():
     assert np.abs(a - b).max() < 1e-12
 
 
-PRESCRIBED = """
-[simulation]
-dim = 2
-domain = { lower = [0.0, 0.0], upper = [1.0, 1.0] }
-dx = 0.025
-transfer = "mls"
-end_time = 0.1
-max_dt = 2e-3
-periodic = ["x"]
-[[materials]]
-name = "m"
-type = "neo_hookean"
-density = 1.0
-E = 100.0
-nu = 0.3
-[[bodies]]
-material = "m"
-shape = "box"
-lower = [0.7, 0.4]
-upper = [0.9, 0.6]
-[[prescribed]]
-region = { lower = [0.7, 0.4], upper = [0.9, 0.6] }
-velocity = [2.0, 0.0]
-angular_velocity = 3.0
-"""
+PRESCRIBED = turning_set(0.4, 0.6)
 
 
 def test_turning_prescribed_set_crosses_a_periodic_face_rigidly():
