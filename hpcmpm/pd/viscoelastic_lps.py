@@ -254,6 +254,13 @@ def _end_rates(theta, m, kappa, alpha_m, dim):
     return dim * kappa * theta / m, cd, cd * theta / dim
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _summed_increments(ci_p, cd_p, ct_p, ci_q, cd_q, ct_q, de, r):
+    """Both ends' (isotropic, deviatoric) increments summed, symmetric in p and q:
+    ((ci_p + ci_q) r, (cd_p + cd_q) de - (ct_p + ct_q) r) (`_end_rates`)."""
+    return (ci_p + ci_q) * r, (cd_p + cd_q) * de - (ct_p + ct_q) * r
+
+
 @njit(cache=True, error_model="numpy")
 def _end_rate_arrays(theta, m, kappa, alpha_m, dim):
     """`_end_rates` of every point (owned + halo rows): arrays (n, 3)."""
@@ -291,10 +298,8 @@ def ve_forces(x, x0, vol, offsets, slot, status, weight, ref_len, s_iso, s_dev, 
             yl = norm3(y0, y1, y2)
             r = ref_len[b]
             de = yl - r
-            # Both ends' increments summed: (ci_p + ci_q) r and (cd_p + cd_q) de -
-            # (ct_p + ct_q) r, symmetric in p and q.
-            inc_i = (c[p, 0] + c[q, 0]) * r
-            inc_d = (c[p, 1] + c[q, 1]) * de - (c[p, 2] + c[q, 2]) * r
+            inc_i, inc_d = _summed_increments(c[p, 0], c[p, 1], c[p, 2], c[q, 0], c[q, 1],
+                                              c[q, 2], de, r)
             w = weight[b]
             if memory_none:
                 si = w * inc_i
@@ -353,8 +358,7 @@ def _ghost_forces(x, x0, vol, offsets, slot, status, p, fc, faces, clamp, ghost,
         de = yl - r
         ci_p, cd_p, ct_p = _end_rates(theta[p], m[p], kappa, alpha_m, dim)
         ci_q, cd_q, ct_q = _end_rates(theta_image[q, fc], m_image[q, fc], kappa, alpha_m, dim)
-        inc_i = (ci_p + ci_q) * r
-        inc_d = (cd_p + cd_q) * de - (ct_p + ct_q) * r
+        inc_i, inc_d = _summed_increments(ci_p, cd_p, ct_p, ci_q, cd_q, ct_q, de, r)
         if memory_none:
             si = w * inc_i
             sd = w * inc_d
