@@ -60,7 +60,9 @@ class DistributedPDBody:
         self._rebuild(bonds=None)
         family = find_families(self.pts.x0, self.pts.ids, p.n, spacing, delta,
                                influence=influence, partial_volumes=partial_volumes,
-                               precracks=precracks, image_period=domain.period_lengths())
+                               precracks=precracks, image_period=domain.period_lengths(),
+                               homes=np.concatenate([p["x0"], self.halo.refresh(
+                                   {"home": p["x0"]})["home"]]))
         self.bonds = family.bonds
         self.pts.bonds = self.bonds
         model.setup(self.pts)

@@ -28,6 +28,7 @@ gaussian exp(-(|X|/delta)^2).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -150,7 +151,7 @@ def horizon_length(spacing: float, horizon: float | None = DEFAULT_HORIZON,
 def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
                   influence: str = "constant", partial_volumes: bool = True,
                   precracks=None, period=None, period_lo=None,
-                  image_period=None) -> Family:
+                  image_period=None, homes=None) -> Family:
     """Bonds of points ``0..n_owned-1`` to every point of ``x0`` (owned then halo).
 
     Parameters
@@ -165,7 +166,13 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
         ``period_lo``; images of the points within the search radius are appended and bonds
         reach them (every image nearer than the radius, which must be below the period).
     image_period : (d,) periods of a box whose images the caller already put among the
-        points (a rank's periodic halo): only to label the half-bonds' images.
+        points (a rank's periodic halo): to label the half-bonds' images, and to stand each
+        pre-crack one period either way.
+    homes : (n, d) each point's own reference position (its particle's x0; the x0 of an
+        image differs from it by whole periods), for the pre-crack test to write
+        a bond alike at both ends (`_bond_segment`). Default ``x0``: right wherever the
+        caller put no images among the points (with ``period`` the images made here are
+        known).
     Returns a `Family`; its bonds' slots index the (extended) point arrays, each segment
     ordered by (partner id, image label: bonds.image_label).
     """
@@ -175,6 +182,7 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
     if delta < spacing:
         raise ValueError(f"horizon {delta:g} is below one particle spacing {spacing:g}")
     radius = family_radius(delta, spacing, partial_volumes)
+    homes = x0 if homes is None else np.ascontiguousarray(homes, dtype=np.float64)
     image_source = image_shift = None
     if period is not None:
         period = np.asarray(period, dtype=np.float64)
@@ -187,25 +195,29 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
                                                     radius)
         x0 = np.concatenate([x0, x0[image_source] + image_shift])
         ids = np.concatenate([ids, ids[image_source]])
-    seg, poly_v, poly_off = _pack_precracks(precracks, dim)
+        homes = np.concatenate([homes, homes[image_source]])
+    labels = period if period is not None else image_period
+    if labels is not None:
+        labels = np.where(np.isfinite(labels) & (np.asarray(labels) > 0), labels, 0.0)
+    periods = np.zeros(dim) if labels is None else np.ascontiguousarray(labels, np.float64)
+    seg, poly_v, poly_off = _pack_precracks(precracks, dim, labels)
     keys, order, cell_lo, ncell = _cell_sort(x0, radius)
     code = influence_code(influence)
     counts = np.zeros(n_owned, dtype=np.int64)
     _search(x0, n_owned, keys[order], order, cell_lo, ncell, radius, delta, spacing,
-            partial_volumes, code, seg, poly_v, poly_off, counts, np.empty(0, np.int64),
-            np.empty(0, np.int32), np.empty(0), True)
+            partial_volumes, code, seg, poly_v, poly_off, homes, ids, periods, counts,
+            np.empty(0, np.int64), np.empty(0, np.int32), np.empty(0), True)
     offsets = np.zeros(n_owned + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
     nb = int(offsets[-1])
     slot = np.empty(nb, dtype=np.int32)
     weight = np.empty(nb, dtype=np.float64)
     _search(x0, n_owned, keys[order], order, cell_lo, ncell, radius, delta, spacing,
-            partial_volumes, code, seg, poly_v, poly_off, counts, offsets, slot, weight, False)
+            partial_volumes, code, seg, poly_v, poly_off, homes, ids, periods, counts, offsets,
+            slot, weight, False)
     partner = ids[slot]
     image = np.zeros(nb, dtype=np.int8)
-    labels = period if period is not None else image_period
     if labels is not None:
-        labels = np.where(np.isfinite(labels) & (np.asarray(labels) > 0), labels, 0.0)
         _label_images(offsets, slot, x0, np.ascontiguousarray(labels, np.float64), image)
     _sort_segments_by_id(offsets, partner, slot, weight, image)
     bonds = Bonds(offsets, partner, weight, slot=slot, image=image)
@@ -267,16 +279,27 @@ def periodic_images(x0, lo, period, reach):
     return np.concatenate(srcs).astype(np.int64), np.concatenate(shifts).astype(np.float64)
 
 
-def _pack_precracks(precracks, dim):
+def _pack_precracks(precracks, dim, periods=None):
+    """Pre-cracks as the search kernel reads them: 2D segments (k, 2, 2); 3D polygons as
+    vertices and offsets. Along periodic axes (``periods``: lengths, 0 elsewhere) each
+    crack also stands one period either way: a bond that crosses the face reaches a
+    partner's image, and must meet the crack where that image's bond does (the partner's
+    own half-bond, one period away)."""
     seg = np.empty((0, 2, 2))
     poly_v = np.empty((0, 3))
     poly_off = np.zeros(1, dtype=np.int64)
     if precracks is None or len(precracks) == 0:
         return seg, poly_v, poly_off
+    shifts = np.zeros((1, dim))
+    if periods is not None and np.any(np.asarray(periods) > 0):
+        steps = [(0.0, -1.0, 1.0) if periods[a] > 0 else (0.0,) for a in range(dim)]
+        shifts = np.array(list(itertools.product(*steps))) * np.asarray(periods)
     if dim == 2:
-        seg = np.ascontiguousarray(precracks, dtype=np.float64).reshape(-1, 2, 2)
+        one = np.asarray(precracks, dtype=np.float64).reshape(-1, 2, 2)
+        seg = np.ascontiguousarray(np.concatenate([one + s for s in shifts]))
     else:
-        polys = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in precracks]
+        polys = [np.asarray(p, dtype=np.float64).reshape(-1, 3) + s
+                 for s in shifts for p in precracks]
         poly_v = np.ascontiguousarray(np.concatenate(polys))
         poly_off = np.zeros(len(polys) + 1, dtype=np.int64)
         np.cumsum([len(p) for p in polys], out=poly_off[1:])
@@ -308,7 +331,8 @@ def _lower_bound(a, v):
 
 @njit(cache=True, error_model="numpy")
 def _search(x0, n_owned, sorted_keys, order, cell_lo, ncell, radius, delta, dx, pv, code,
-            seg, poly_v, poly_off, counts, offsets, slot, weight, count_only):
+            seg, poly_v, poly_off, homes, ids, periods, counts, offsets, slot, weight,
+            count_only):
     """Cell-list search; first pass counts bonds per owned point, second pass fills them."""
     dim = x0.shape[1]
     r2 = radius * radius
@@ -362,8 +386,11 @@ def _search(x0, n_owned, sorted_keys, order, cell_lo, ncell, radius, delta, dx, 
                     w = influence(code, r, delta) * partial_volume(r, delta, dx, pv)
                     if w <= 0.0:
                         continue
-                    if cracks and _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
-                        continue
+                    if cracks:
+                        px, py, pz, qx, qy, qz = _bond_segment(x0, homes, ids, periods, i, j)
+                        if _crosses_precrack(px, py, pz, qx, qy, qz, dim, seg, poly_v,
+                                             poly_off):
+                            continue
                     if not count_only:
                         slot[k] = j
                         weight[k] = w
@@ -379,14 +406,54 @@ def _orient(ax, ay, bx, by, cx, cy):
 
 
 @njit(cache=True, error_model="numpy")
-def _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
-    """True when the reference segment x0_i -> x0_j crosses a pre-crack: a 2D segment (the
-    bond's ends strictly on opposite sides of its line, the crack's ends not strictly on the
-    same side of the bond's line) or a 3D planar polygon (ends strictly on opposite sides of
-    its plane, the crossing point inside the polygon by the even-odd rule)."""
+def _bond_segment(x0, homes, ids, periods, i, j):
+    """The reference segment of the bond i -> j as both its ends write it: from the end with
+    the lower id, at its particle's own reference position (``homes``), to the other end's
+    own position moved by the bond's whole periods (read from how far each row's x0
+    lies from its home: the image a halo or the periodic search made). Each end of a bond
+    then tests a pre-crack with the same numbers and the same arithmetic, so a crack end on
+    the bond's line (a tie, which round-off decides: Kalthoff-Winkler's notch tips lie on
+    lattice diagonals, a crack drawn from a periodic face ends on bonds across it) cuts
+    both half-bonds or neither. Returns (px, py, pz, qx, qy, qz); z = 0 in 2D."""
     dim = x0.shape[1]
+    r0 = r1 = r2 = 0.0
+    for a in range(dim):
+        if periods[a] > 0.0:
+            r = (math.floor((x0[j, a] - homes[j, a]) / periods[a] + 0.5)
+                 - math.floor((x0[i, a] - homes[i, a]) / periods[a] + 0.5))
+            if a == 0:
+                r0 = r
+            elif a == 1:
+                r1 = r
+            else:
+                r2 = r
+    lo, hi = i, j
+    if ids[j] < ids[i] or (ids[j] == ids[i] and (r0 < 0.0 or (r0 == 0.0 and (
+            r1 < 0.0 or (r1 == 0.0 and r2 < 0.0))))):
+        lo, hi = j, i                  # a partner's own image: the one a period up
+        r0, r1, r2 = -r0, -r1, -r2
+    px, py = homes[lo, 0], homes[lo, 1]
+    qx, qy = homes[hi, 0], homes[hi, 1]
+    pz = qz = 0.0
+    if periods[0] > 0.0:
+        qx = qx + r0 * periods[0]
+    if periods[1] > 0.0:
+        qy = qy + r1 * periods[1]
+    if dim == 3:
+        pz, qz = homes[lo, 2], homes[hi, 2]
+        if periods[2] > 0.0:
+            qz = qz + r2 * periods[2]
+    return px, py, pz, qx, qy, qz
+
+
+@njit(cache=True, error_model="numpy")
+def _crosses_precrack(px, py, pz, qx, qy, qz, dim, seg, poly_v, poly_off):
+    """True when the reference segment p -> q (`_bond_segment`) crosses a pre-crack: a 2D
+    segment (the bond's ends strictly on opposite sides of its line, the crack's ends not
+    strictly on the same side of the bond's line) or a 3D planar polygon (ends strictly on
+    opposite sides of its plane, the crossing point inside the polygon by the even-odd
+    rule)."""
     if dim == 2:
-        px, py, qx, qy = x0[i, 0], x0[i, 1], x0[j, 0], x0[j, 1]
         for s in range(seg.shape[0]):
             ax, ay, bx, by = seg[s, 0, 0], seg[s, 0, 1], seg[s, 1, 0], seg[s, 1, 1]
             if _orient(ax, ay, bx, by, px, py) * _orient(ax, ay, bx, by, qx, qy) < 0.0 and \
@@ -402,16 +469,14 @@ def _crosses_precrack(x0, i, j, seg, poly_v, poly_off):
             nx += (poly_v[k, 1] - poly_v[kn, 1]) * (poly_v[k, 2] + poly_v[kn, 2])
             ny += (poly_v[k, 2] - poly_v[kn, 2]) * (poly_v[k, 0] + poly_v[kn, 0])
             nz += (poly_v[k, 0] - poly_v[kn, 0]) * (poly_v[k, 1] + poly_v[kn, 1])
-        dp = nx * (x0[i, 0] - poly_v[a0, 0]) + ny * (x0[i, 1] - poly_v[a0, 1]) + \
-            nz * (x0[i, 2] - poly_v[a0, 2])
-        dq = nx * (x0[j, 0] - poly_v[a0, 0]) + ny * (x0[j, 1] - poly_v[a0, 1]) + \
-            nz * (x0[j, 2] - poly_v[a0, 2])
+        dp = nx * (px - poly_v[a0, 0]) + ny * (py - poly_v[a0, 1]) + nz * (pz - poly_v[a0, 2])
+        dq = nx * (qx - poly_v[a0, 0]) + ny * (qy - poly_v[a0, 1]) + nz * (qz - poly_v[a0, 2])
         if not dp * dq < 0.0:
             continue
         t = dp / (dp - dq)
-        hit0 = x0[i, 0] + t * (x0[j, 0] - x0[i, 0])
-        hit1 = x0[i, 1] + t * (x0[j, 1] - x0[i, 1])
-        hit2 = x0[i, 2] + t * (x0[j, 2] - x0[i, 2])
+        hit0 = px + t * (qx - px)
+        hit1 = py + t * (qy - py)
+        hit2 = pz + t * (qz - pz)
         # Project on the plane of the two axes where the normal is smallest.
         ax_, ay_, az_ = abs(nx), abs(ny), abs(nz)
         if ax_ >= ay_ and ax_ >= az_:
