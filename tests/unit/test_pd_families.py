@@ -146,6 +146,29 @@ def test_a_crack_tip_on_bond_lines_cuts_both_half_bonds_alike():
     assert one_sided == 0
 
 
+def test_a_crack_tip_on_bond_lines_cuts_them_wherever_the_lattice_sits():
+    """A notch tip midway between two rows and two columns lies on every bond through that
+    point: the closed-segment rule cuts them all. Decided by the sign of round-off they were
+    cut or kept depending on where the scene sat in space (Kalthoff-Winkler's lattice: 107000,
+    107004, 106998 half-bonds at three offsets, measured); with `_side` the bonds are the same
+    at every offset and the same as with the tip moved 1e-3 spacings into the crack, while
+    moving it 1e-3 out keeps the 20 half-bonds through it (so the ties are there)."""
+    axis = np.arange(0.05, 2.0, 0.1)
+    base = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
+    ids = np.arange(len(base))
+
+    def bonds(tip_y, off):
+        crack = np.array([[[1.0, 2.1], [1.0, tip_y]]]) + off
+        b = find_families(base + off, ids, len(ids), 0.1, 0.3015, precracks=crack).bonds
+        return set(zip(np.repeat(ids, np.diff(b.offsets)).tolist(), b.partner.tolist()))
+
+    at_tie = bonds(1.0, np.zeros(2))
+    assert at_tie == bonds(1.0 - 1e-4, np.zeros(2))
+    assert len(bonds(1.0 + 1e-4, np.zeros(2))) == len(at_tie) + 20
+    for off in ([0.37, -0.53], [-3.3, 7.7], [0.1, 0.1], [1e-3, 0.0]):
+        assert bonds(1.0, np.array(off)) == at_tie, off
+
+
 @pytest.mark.parametrize("cracks", [
     [[[0.0, 1.0], [1.5, 1.0]]],                          # from the face into the strip
     [[[3.5, 0.5], [4.0, 1.5]]],                          # ending on the far face

@@ -35,13 +35,14 @@ def test_angle_measurement_recovers_a_drawn_crack():
 
 def test_one_mm_angle_with_notch_gaps_is_in_the_band():
     """The issue's 1 mm run (PMB plane strain, delta = 3.015 dx, s0 from G0, 16 m/s on the
-    impact set, 90 us) with 2 mm notch gaps, over 4 runs whose initial positions carry
-    +-1e-4 dx noise (seeds 0-3): the mean of the per-run mean angles is inside 70 +- 6.
-    Measured 65.0, 66.2, 65.0, 64.9 (6 seeds: mean 65.0, run s.d. 0.7): the mean of 4,
-    65.3, sits 3.6 standard errors (0.35) above the band's edge, where one run alone would
-    sit 1.4 s.d. above it, close enough for a round-off change in the crack path to cross."""
+    impact set, 90 us) with 2 mm notch gaps, over 6 runs whose initial positions carry
+    +-1e-4 dx noise (seeds 0-5): the mean of the per-run mean angles is inside 70 +- 6.
+    Measured 63.1, 65.7, 64.8, 66.1, 65.9, 65.3 (mean 65.1, run s.d. 1.1, standard error
+    0.45: 2.5 of them above the band's edge; the first 4 alone give 64.9, where one run
+    alone can fall below the edge, 63.1). Before pre-crack ties were decided by the
+    closed-segment rule (families._side): 65.0, 66.2, 65.0, 64.9 over seeds 0-3."""
     means = []
-    for seed in range(4):
+    for seed in range(6):
         body, _ = run(1e-3, perturb=1e-4, seed=seed, notch_width=2e-3)
         x0 = body.pts.x0[: body.pts.n_owned]
         means.append(np.mean([a for a, _ in crack_angles(x0, body.damage(), 1e-3)]))
