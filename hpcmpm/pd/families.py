@@ -481,8 +481,16 @@ def _crosses_precrack(px, py, pz, qx, qy, qz, dim, seg, poly_v, poly_off):
             nx += (poly_v[k, 1] - poly_v[kn, 1]) * (poly_v[k, 2] + poly_v[kn, 2])
             ny += (poly_v[k, 2] - poly_v[kn, 2]) * (poly_v[k, 0] + poly_v[kn, 0])
             nz += (poly_v[k, 0] - poly_v[kn, 0]) * (poly_v[k, 1] + poly_v[kn, 1])
-        dp = nx * (px - poly_v[a0, 0]) + ny * (py - poly_v[a0, 1]) + nz * (pz - poly_v[a0, 2])
-        dq = nx * (qx - poly_v[a0, 0]) + ny * (qy - poly_v[a0, 1]) + nz * (qz - poly_v[a0, 2])
+        ox, oy, oz = poly_v[a0, 0], poly_v[a0, 1], poly_v[a0, 2]
+        dp = nx * (px - ox) + ny * (py - oy) + nz * (pz - oz)
+        dq = nx * (qx - ox) + ny * (qy - oy) + nz * (qz - oz)
+        # An end on the polygon's plane (to within ON_LINE, as `_side` in 2D) is not across
+        # it: a lattice plane on the crack's plane is not decided by round-off.
+        norm = abs(nx) + abs(ny) + abs(nz)
+        if abs(dp) <= ON_LINE * norm * (abs(px - ox) + abs(py - oy) + abs(pz - oz)):
+            dp = 0.0
+        if abs(dq) <= ON_LINE * norm * (abs(qx - ox) + abs(qy - oy) + abs(qz - oz)):
+            dq = 0.0
         if not dp * dq < 0.0:
             continue
         t = dp / (dp - dq)
@@ -502,6 +510,14 @@ def _crosses_precrack(px, py, pz, qx, qy, qz, dim, seg, poly_v, poly_off):
             kn = k + 1 if k + 1 < a1 else a0
             uk, vk = poly_v[k, iu], poly_v[k, iv]
             un, vn = poly_v[kn, iu], poly_v[kn, iv]
+            # A crossing on an edge (to within ON_LINE) is inside: the polygon is closed, as
+            # a 2D crack's end cuts the bonds through it (a lattice puts edges on them).
+            eu, ev, wu, wv = un - uk, vn - vk, u - uk, v - vk
+            if abs(eu * wv - ev * wu) <= ON_LINE * (abs(eu) + abs(ev)) * (abs(wu) + abs(wv)):
+                along = eu * wu + ev * wv
+                length2 = eu * eu + ev * ev
+                if -ON_LINE * length2 <= along <= (1.0 + ON_LINE) * length2:
+                    return True
             if (vk > v) != (vn > v):
                 if u < uk + (v - vk) * (un - uk) / (vn - vk):
                     inside = not inside

@@ -203,6 +203,31 @@ def test_a_crack_around_the_whole_period_separates_the_strip():
     assert b.counts().min() > 0
 
 
+def test_a_polygon_crack_edge_on_bond_lines_cuts_alike_wherever_the_lattice_sits():
+    """3D: a square crack in the plane z = 1.0 (between lattice planes) whose edge x = 0.5
+    lies midway between two lattice columns: bonds cross the crack's plane exactly on that
+    edge, and a crossing on an edge is inside (the polygon closed, `_crosses_precrack`). The
+    bonds are the same at every offset of the lattice and the same as with the square grown
+    by 1e-4, while shrinking it keeps bonds (so the ties are there). Fails on the code
+    before the edge rule (the sign of round-off decided)."""
+    axis = np.arange(0.125, 2.0, 0.25)
+    base = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    ids = np.arange(len(base))
+
+    def bonds(grow, off):
+        lo, hi, top = -grow, 0.5 + grow, 2.0 + grow
+        square = [np.array([[lo, lo, 1.0], [hi, lo, 1.0], [hi, top, 1.0], [lo, top, 1.0]])
+                  + off]
+        b = find_families(base + off, ids, len(ids), 0.25, 0.75, precracks=square).bonds
+        return set(zip(np.repeat(ids, np.diff(b.offsets)).tolist(), b.partner.tolist()))
+
+    at_tie = bonds(0.0, np.zeros(3))
+    assert at_tie == bonds(1e-4, np.zeros(3))
+    assert len(bonds(-1e-4, np.zeros(3))) > len(at_tie)
+    for off in ([0.37, -0.53, 0.11], [-3.3, 7.7, 2.9], [1e-3, 0.0, 0.0]):
+        assert bonds(0.0, np.array(off)) == at_tie, off
+
+
 def test_a_polygon_crack_at_a_periodic_face_in_3d():
     """3D, periodic along x and y: a square crack in the plane z = 1.0 reaching past the
     corner x = y = 0 (its images stand at the other three corners) cuts both half-bonds of
