@@ -122,6 +122,12 @@ class PDHalo:
         return out
 
 
+    def homes(self, x0: np.ndarray) -> np.ndarray:
+        """My rows' reference positions ``x0`` followed by the halo rows' own, not moved by
+        the period (an image's shipped x0 differs from its home by whole periods:
+        `find_families` reads a bond's periods from that difference). Collective."""
+        return np.concatenate([x0, self.refresh({"home": x0})["home"]])
+
     def refresh_rows(self, n_owned: int):
         """A callable refreshing the halo rows (n_owned..) of arrays over owned + halo rows
         from their owned rows."""

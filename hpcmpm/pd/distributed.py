@@ -61,8 +61,7 @@ class DistributedPDBody:
         family = find_families(self.pts.x0, self.pts.ids, p.n, spacing, delta,
                                influence=influence, partial_volumes=partial_volumes,
                                precracks=precracks, image_period=domain.period_lengths(),
-                               homes=np.concatenate([p["x0"], self.halo.refresh(
-                                   {"home": p["x0"]})["home"]]))
+                               homes=self.halo.homes(p["x0"]))
         self.bonds = family.bonds
         self.pts.bonds = self.bonds
         model.setup(self.pts)

@@ -92,12 +92,6 @@ class PDExtension:
                                      self.sim.domain.period_lengths())
         self.model.resize(len(self.pts.x))
 
-    def _homes(self, x0: np.ndarray) -> np.ndarray:
-        """The owned and halo rows' own reference positions: the halo ships images with x0
-        moved by whole periods, and `find_families` reads the bond's periods from the
-        difference. One halo exchange, at the family search only. Collective."""
-        return np.concatenate([x0, self.halo.refresh({"home": x0})["home"]])
-
     def _where(self, key: str = "") -> str:
         """The material's place in the scene file, for messages in the validator's format."""
         return f"{self.sim.scene.path}: materials[{self.group}]" + (f".{key}" if key else "")
@@ -151,7 +145,7 @@ class PDExtension:
                                partial_volumes=prm["partial_volumes"],
                                precracks=prm["precracks"],
                                image_period=self.sim.domain.period_lengths(),
-                               homes=self._homes(x0))
+                               homes=self.halo.homes(x0))
         self.bonds = family.bonds
         self.pts.bonds = self.bonds
         self.bond_ids = p["id"][start:stop].copy()

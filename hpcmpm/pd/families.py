@@ -28,7 +28,6 @@ gaussian exp(-(|X|/delta)^2).
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -218,7 +217,7 @@ def find_families(x0, ids, n_owned: int, spacing: float, delta: float, *,
     partner = ids[slot]
     image = np.zeros(nb, dtype=np.int8)
     if labels is not None:
-        _label_images(offsets, slot, x0, np.ascontiguousarray(labels, np.float64), image)
+        _label_images(offsets, slot, x0, periods, image)
     _sort_segments_by_id(offsets, partner, slot, weight, image)
     bonds = Bonds(offsets, partner, weight, slot=slot, image=image)
     return Family(bonds, float(delta), float(spacing), float(radius), bool(partial_volumes),
@@ -257,17 +256,23 @@ def shift_into_box(x0, lo, period) -> np.ndarray:
     return np.where(periodic, -np.floor((x0 - lo) / safe) * safe, 0.0)
 
 
+def period_shifts(period) -> np.ndarray:
+    """Whole-period offsets k * period, k in {-1, 0, 1} along each periodic axis (period >
+    0) and 0 along the others: (3^p, d), the zero offset included, in meshgrid order."""
+    period = np.asarray(period, dtype=np.float64)
+    axes = [(-1, 0, 1) if period[a] > 0 else (0,) for a in range(len(period))]
+    return np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(period), -1).T * period
+
+
 def periodic_images(x0, lo, period, reach):
     """Images of points within ``reach`` of the faces of the periodic box [lo, lo + period)
     (period 0: not periodic). Returns (source rows (m,) int64, shifts (m, d))."""
     x0 = np.asarray(x0, dtype=np.float64)
     dim = x0.shape[1]
     srcs, shifts = [], []
-    axes = [(-1, 0, 1) if period[a] > 0 else (0,) for a in range(dim)]
-    for combo in np.array(np.meshgrid(*axes, indexing="ij")).reshape(dim, -1).T:
-        if not combo.any():
+    for shift in period_shifts(period):
+        if not shift.any():
             continue
-        shift = combo * period
         y = x0 + shift
         inside = np.all((y >= lo - reach) & (y < lo + np.where(period > 0, period, np.inf)
                                              + reach), axis=1)
@@ -290,10 +295,7 @@ def _pack_precracks(precracks, dim, periods=None):
     poly_off = np.zeros(1, dtype=np.int64)
     if precracks is None or len(precracks) == 0:
         return seg, poly_v, poly_off
-    shifts = np.zeros((1, dim))
-    if periods is not None and np.any(np.asarray(periods) > 0):
-        steps = [(0.0, -1.0, 1.0) if periods[a] > 0 else (0.0,) for a in range(dim)]
-        shifts = np.array(list(itertools.product(*steps))) * np.asarray(periods)
+    shifts = np.zeros((1, dim)) if periods is None else period_shifts(periods)
     if dim == 2:
         one = np.asarray(precracks, dtype=np.float64).reshape(-1, 2, 2)
         seg = np.ascontiguousarray(np.concatenate([one + s for s in shifts]))

@@ -117,11 +117,27 @@ def test_precrack_tip_on_a_bond_cuts_it():
     assert at[3.0, 3.0] in [p for p, _ in got[at[2.0, 3.0]]]       # beyond it: kept
 
 
+def strip():
+    """A 40 x 20 lattice of spacing 0.1 filling [0, 4] x [0, 2]."""
+    return np.stack(np.meshgrid(np.arange(0.05, 4.0, 0.1), np.arange(0.05, 2.0, 0.1),
+                                indexing="ij"), -1).reshape(-1, 2)
+
+
+def owners(bonds, ids):
+    """The id of each half-bond's own end (ids: the owned rows' ids)."""
+    return np.repeat(ids[: len(bonds.offsets) - 1], np.diff(bonds.offsets))
+
+
+def bond_pairs(bonds, ids) -> set:
+    """The half-bonds as (owner id, partner id)."""
+    return set(zip(owners(bonds, ids).tolist(), bonds.partner.tolist()))
+
+
 def one_sided_pairs(fam, ids) -> int:
     """Pairs (p, q) whose half-bonds p -> q and q -> p differ in number: a bond one end
     feels and the other does not (both images of a partner count on a periodic axis)."""
     b = fam.bonds
-    owner = np.repeat(ids[: len(b.offsets) - 1], np.diff(b.offsets))
+    owner = owners(b, ids)
     pairs, counts = np.unique(np.stack([owner, b.partner], 1), axis=0, return_counts=True)
     n = dict(zip(map(tuple, pairs.tolist()), counts.tolist()))
     return sum(1 for (p, q), c in n.items() if n.get((q, p), 0) != c)
@@ -137,8 +153,7 @@ def test_a_crack_tip_on_bond_lines_cuts_both_half_bonds_alike():
     one_sided = 0
     for _ in range(40):
         off = rng.uniform(-3.0, 3.0, 2)
-        x0 = np.stack(np.meshgrid(np.arange(0.05, 4.0, 0.1), np.arange(0.05, 2.0, 0.1),
-                                  indexing="ij"), -1).reshape(-1, 2) + off
+        x0 = strip() + off
         ids = np.arange(len(x0))
         cracks = np.array([[[-0.05, 1.0], [2.0, 1.0]], [[1.0, 0.0], [2.05, 1.55]]]) + off
         one_sided += one_sided_pairs(find_families(x0, ids, len(x0), 0.1, 0.3015,
@@ -160,7 +175,7 @@ def test_a_crack_tip_on_bond_lines_cuts_them_wherever_the_lattice_sits():
     def bonds(tip_y, off):
         crack = np.array([[[1.0, 2.1], [1.0, tip_y]]]) + off
         b = find_families(base + off, ids, len(ids), 0.1, 0.3015, precracks=crack).bonds
-        return set(zip(np.repeat(ids, np.diff(b.offsets)).tolist(), b.partner.tolist()))
+        return bond_pairs(b, ids)
 
     at_tie = bonds(1.0, np.zeros(2))
     assert at_tie == bonds(1.0 - 1e-4, np.zeros(2))
@@ -179,8 +194,7 @@ def test_a_crack_at_a_periodic_face_cuts_both_sides(cracks):
     and the partner's own half-bond reaches the first end's image one period away; the
     crack stands at both places (its images, `_pack_precracks`) and both ends test one
     segment (`_bond_segment`), so both half-bonds are cut alike. Measured before: 18, 51 and 30 one-sided pairs."""
-    x0 = np.stack(np.meshgrid(np.arange(0.05, 4.0, 0.1), np.arange(0.05, 2.0, 0.1),
-                              indexing="ij"), -1).reshape(-1, 2)
+    x0 = strip()
     ids = np.arange(len(x0))
     fam = find_families(x0, ids, len(x0), 0.1, 0.3015, precracks=np.array(cracks),
                         period=[4.0, 0.0], period_lo=[0.0, 0.0])
@@ -190,15 +204,14 @@ def test_a_crack_at_a_periodic_face_cuts_both_sides(cracks):
 def test_a_crack_around_the_whole_period_separates_the_strip():
     """A crack from face to face (x = 0 to 4 at y = 1, the period 4) leaves no bond between
     the two halves, across the face included."""
-    x0 = np.stack(np.meshgrid(np.arange(0.05, 4.0, 0.1), np.arange(0.05, 2.0, 0.1),
-                              indexing="ij"), -1).reshape(-1, 2)
+    x0 = strip()
     ids = np.arange(len(x0))
     fam = find_families(x0, ids, len(x0), 0.1, 0.3015,
                         precracks=np.array([[[0.0, 1.0], [4.0, 1.0]]]),
                         period=[4.0, 0.0], period_lo=[0.0, 0.0])
     b = fam.bonds
     below = x0[:, 1] < 1.0
-    owner = np.repeat(ids, np.diff(b.offsets))
+    owner = owners(b, ids)
     assert not np.any(below[owner] != below[b.partner])
     assert b.counts().min() > 0
 
@@ -219,7 +232,7 @@ def test_a_polygon_crack_edge_on_bond_lines_cuts_alike_wherever_the_lattice_sits
         square = [np.array([[lo, lo, 1.0], [hi, lo, 1.0], [hi, top, 1.0], [lo, top, 1.0]])
                   + off]
         b = find_families(base + off, ids, len(ids), 0.25, 0.75, precracks=square).bonds
-        return set(zip(np.repeat(ids, np.diff(b.offsets)).tolist(), b.partner.tolist()))
+        return bond_pairs(b, ids)
 
     at_tie = bonds(0.0, np.zeros(3))
     assert at_tie == bonds(1e-4, np.zeros(3))
@@ -241,7 +254,7 @@ def test_a_polygon_crack_at_a_periodic_face_in_3d():
                         period=[2.0, 2.0, 0.0], period_lo=[0.0, 0.0, 0.0])
     assert one_sided_pairs(fam, ids) == 0
     b = fam.bonds
-    owner = np.repeat(ids, np.diff(b.offsets))
+    owner = owners(b, ids)
     # The pair straight across the crack at the corner (0.125, 0.125, 0.875 / 1.125) is cut;
     # at the box's centre, away from every image, it is kept.
     at = {tuple(x): i for i, x in enumerate(x0.tolist())}
