@@ -26,9 +26,8 @@ import numpy as np
 import pytest
 import tomli_w
 
-from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain
-from hpcmpm.scene import apply_overrides, load_scene
-from hpcmpm.simulation import Simulation
+from hpcmpm.scene import apply_overrides
+from scene_helpers import run_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 VECTOR_KEYS = {"lower", "upper", "velocity", "gravity", "center", "half_extents", "point",
@@ -74,21 +73,6 @@ def turned(raw: dict, perm: list[int]) -> dict:
         return obj
 
     return walk(copy.deepcopy(raw))
-
-
-def run(path: Path) -> tuple[dict, dict]:
-    scene = load_scene(str(path))
-    sim = Simulation(scene, make_domain(scene))
-    initial_particles(sim)
-    start = {int(i): x.copy() for i, x in zip(sim.particles["id"], sim.particles["x"])}
-    Runner(sim, None, RunOptions(out_dir=path.parent, end_time=scene.end_time,
-                                quiet=True)).run()
-    p = sim.particles
-    order = np.argsort(p["id"])
-    fields = {k: np.array(p[k][order]) for k in ("id", "x", "v", "F", "model", "damage")
-              if k in p}
-    fields["steps"] = sim.step_index
-    return start, fields
 
 
 def pair(start_a: dict, start_b: dict, perm: list[int]) -> np.ndarray:
@@ -145,8 +129,8 @@ def test_a_turned_scene_gives_the_turned_result(tmp_path, scene, end_time, extra
         path = tmp_path / name / f"{scene}.toml"
         path.write_text(tomli_w.dumps(scene_raw))
         paths.append(path)
-    start_a, a = run(paths[0])
-    start_b, b = run(paths[1])
+    start_a, a = run_scene(paths[0])
+    start_b, b = run_scene(paths[1])
     assert a["steps"] == b["steps"] > 0
     partner = pair(start_a, start_b, perm)
     rows_b = np.searchsorted(b["id"], partner)
