@@ -418,9 +418,10 @@ def _simulation(c: Checker, raw: dict) -> dict:
     p = "simulation"
     out: dict[str, Any] = {}
     dim = sim.get("dim")
-    if dim not in (2, 3) or isinstance(dim, bool):
+    # An int: 2.0 equals 2 but would reach `(0.0,) * dim` and every shape as a float.
+    if not isinstance(dim, int) or isinstance(dim, bool) or dim not in (2, 3):
         c.problem(f"{p}.dim", "missing" if dim is None else
-                  f"must be 2 or 3, got {_describe(dim)}")
+                  f"must be the integer 2 or 3, got {_describe(dim)}")
         dim = None
     out["dim"] = dim
     domain = c.table(sim, "domain", p, required=True)

@@ -35,7 +35,7 @@ CASES = {
     "wrong_type_material": (GOOD.replace("E = 1000.0", 'E = "abc"'),
                             "materials[0].E: must be a number, got string 'abc'"),
     "wrong_type_dim": (GOOD.replace("dim = 2", 'dim = "2"'),
-                       "simulation.dim: must be 2 or 3, got string '2'"),
+                       "simulation.dim: must be the integer 2 or 3, got string '2'"),
     "missing_end_time": (GOOD.replace("end_time = 3.0", ""), "simulation.end_time: missing"),
     "missing_material_E": (GOOD.replace("E = 1000.0", ""), "materials[0].E: missing"),
     "nu_half": (GOOD.replace("nu = 0.3", "nu = 0.5"), "materials[0].nu: must be < 0.5, got 0.5"),
@@ -139,7 +139,11 @@ CASES = {
     "unknown_key_without_a_close_match": (GOOD.replace("every = 0.1", "every = 0.1\nbogus = 1"),
                                           "output.bogus: unknown key (allowed: every, fields, "
                                           "checkpoint_every, checkpoint_keep)"),
-    "dim_one": (GOOD.replace("dim = 2", "dim = 1"), "simulation.dim: must be 2 or 3, got int 1"),
+    "dim_one": (GOOD.replace("dim = 2", "dim = 1"),
+                "simulation.dim: must be the integer 2 or 3, got int 1"),
+    # 2.0 == 2 passed the check and stopped the run with a TypeError traceback further on.
+    "dim_float": (GOOD.replace("dim = 2", "dim = 2.0"),
+                  "simulation.dim: must be the integer 2 or 3, got float 2.0"),
     "wrong_type_bool": (GOOD.replace("cfl = 0.4", "cfl = true"),
                         "simulation.cfl: must be a number, got boolean true"),
     "bool_in_vector": (GOOD.replace("velocity = [0.1, 0.1]", "velocity = [true, 0.1]"),
