@@ -127,12 +127,11 @@ CASES = [
                                    "prescribed.1.velocity=[0.0, 3.0]"],
      "SPB-MPM: grid energy, conversions, bond energy failure"),
     ("ibmpm_ball_board_3d", 0.1, [], "integral-based MPM, 3D bond plasticity, contact"),
-    # 805 steps: the wall has yielded and broken (psi_p's 2D exponent: with 3D's it differs
-    # by 3.5 % of the domain, measured).
-    ("ibmpm_wall_fracture_2d", 0.4, [], "2D bond plasticity, fracture, the PD clamp"),
+    # 410 steps: the wall has yielded and 182 particles have broken bonds (psi_p's 2D
+    # exponent: with 3D's the positions differ, tried).
+    ("ibmpm_wall_fracture_2d", 0.2, [], "2D bond plasticity, fracture, the PD clamp"),
     ("taylor_cu_3d", 0.1, [], "a mesh body, J2 with Johnson-Cook, Mie-Grueneisen"),
     ("hb_mixer_2d", 0.1, [], "semi-implicit Herschel-Bulkley, turning colliders"),
-    ("sponge_twist_ob_3d", 0.1, [], "3D semi-implicit Oldroyd-B, a turning clamp"),
     ("watermelon_3d", 0.1, [], "SPB impact, stretch failure, mesh bodies"),
 ]
 
