@@ -121,7 +121,6 @@ class PDHalo:
             out[k][...] = v
         return out
 
-
     def homes(self, x0: np.ndarray) -> np.ndarray:
         """My rows' reference positions ``x0`` followed by the halo rows' own, not moved by
         the period (an image's shipped x0 differs from its home by whole periods:

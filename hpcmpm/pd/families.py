@@ -461,6 +461,17 @@ def _bond_segment(x0, homes, ids, periods, i, j):
 
 
 @njit(cache=True, error_model="numpy")
+def _plane_side(nx, ny, nz, ox, oy, oz, px, py, pz):
+    """Which side of the plane through o with normal n the point p lies on: n . (p - o), or 0
+    within ON_LINE of |n| |p - o| (L1 lengths), as `_side` in 2D: an end on a polygon's
+    plane is not across it, so a lattice plane on the crack's plane is not decided by
+    round-off."""
+    d = nx * (px - ox) + ny * (py - oy) + nz * (pz - oz)
+    norm = abs(nx) + abs(ny) + abs(nz)
+    return 0.0 if abs(d) <= ON_LINE * norm * (abs(px - ox) + abs(py - oy) + abs(pz - oz)) else d
+
+
+@njit(cache=True, error_model="numpy")
 def _crosses_precrack(px, py, pz, qx, qy, qz, dim, seg, poly_v, poly_off):
     """True when the reference segment p -> q (`_bond_segment`) crosses a pre-crack: a 2D
     segment (the bond's ends strictly on opposite sides of its line, the crack's ends not
@@ -484,15 +495,8 @@ def _crosses_precrack(px, py, pz, qx, qy, qz, dim, seg, poly_v, poly_off):
             ny += (poly_v[k, 2] - poly_v[kn, 2]) * (poly_v[k, 0] + poly_v[kn, 0])
             nz += (poly_v[k, 0] - poly_v[kn, 0]) * (poly_v[k, 1] + poly_v[kn, 1])
         ox, oy, oz = poly_v[a0, 0], poly_v[a0, 1], poly_v[a0, 2]
-        dp = nx * (px - ox) + ny * (py - oy) + nz * (pz - oz)
-        dq = nx * (qx - ox) + ny * (qy - oy) + nz * (qz - oz)
-        # An end on the polygon's plane (to within ON_LINE, as `_side` in 2D) is not across
-        # it: a lattice plane on the crack's plane is not decided by round-off.
-        norm = abs(nx) + abs(ny) + abs(nz)
-        if abs(dp) <= ON_LINE * norm * (abs(px - ox) + abs(py - oy) + abs(pz - oz)):
-            dp = 0.0
-        if abs(dq) <= ON_LINE * norm * (abs(qx - ox) + abs(qy - oy) + abs(qz - oz)):
-            dq = 0.0
+        dp = _plane_side(nx, ny, nz, ox, oy, oz, px, py, pz)
+        dq = _plane_side(nx, ny, nz, ox, oy, oz, qx, qy, qz)
         if not dp * dq < 0.0:
             continue
         t = dp / (dp - dq)

@@ -117,10 +117,15 @@ def test_precrack_tip_on_a_bond_cuts_it():
     assert at[3.0, 3.0] in [p for p, _ in got[at[2.0, 3.0]]]       # beyond it: kept
 
 
+def cell_centres(upper, h):
+    """A lattice of spacing h at the cell centres (k + 1/2) h filling [0, upper) per axis."""
+    axes = [np.arange(h / 2, u, h) for u in upper]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(upper))
+
+
 def strip():
     """A 40 x 20 lattice of spacing 0.1 filling [0, 4] x [0, 2]."""
-    return np.stack(np.meshgrid(np.arange(0.05, 4.0, 0.1), np.arange(0.05, 2.0, 0.1),
-                                indexing="ij"), -1).reshape(-1, 2)
+    return cell_centres([4.0, 2.0], 0.1)
 
 
 def owners(bonds, ids):
@@ -168,8 +173,7 @@ def test_a_crack_tip_on_bond_lines_cuts_them_wherever_the_lattice_sits():
     107004, 106998 half-bonds at three offsets, measured); with `_side` the bonds are the same
     at every offset and the same as with the tip moved 1e-3 spacings into the crack, while
     moving it 1e-3 out keeps the 20 half-bonds through it (so the ties are there)."""
-    axis = np.arange(0.05, 2.0, 0.1)
-    base = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
+    base = cell_centres([2.0, 2.0], 0.1)
     ids = np.arange(len(base))
 
     def bonds(tip_y, off):
@@ -223,8 +227,7 @@ def test_a_polygon_crack_edge_on_bond_lines_cuts_alike_wherever_the_lattice_sits
     bonds are the same at every offset of the lattice and the same as with the square grown
     by 1e-4, while shrinking it keeps bonds (so the ties are there). Fails on the code
     before the edge rule (the sign of round-off decided)."""
-    axis = np.arange(0.125, 2.0, 0.25)
-    base = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    base = cell_centres([2.0, 2.0, 2.0], 0.25)
     ids = np.arange(len(base))
 
     def bonds(grow, off):
@@ -245,8 +248,7 @@ def test_a_polygon_crack_at_a_periodic_face_in_3d():
     """3D, periodic along x and y: a square crack in the plane z = 1.0 reaching past the
     corner x = y = 0 (its images stand at the other three corners) cuts both half-bonds of
     each pair alike, ties included (the lattice's bond midpoints lie on its edges)."""
-    axis = np.arange(0.125, 2.0, 0.25)
-    x0 = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    x0 = cell_centres([2.0, 2.0, 2.0], 0.25)
     ids = np.arange(len(x0))
     square = [np.array([[-0.5, -0.5, 1.0], [0.5, -0.5, 1.0], [0.5, 0.5, 1.0],
                         [-0.5, 0.5, 1.0]])]

@@ -3,15 +3,29 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain
 from hpcmpm.scene import load_scene
 from hpcmpm.simulation import Simulation
 
 FIELDS = ("id", "x", "v", "F", "model", "damage")
+INPUTS = Path(__file__).resolve().parents[2] / "inputs"
+
+
+def write_scene(folder: Path, scene: str, raw: dict) -> Path:
+    """Write the parsed scene ``raw`` as ``folder/scene.toml`` (folder made new), with the
+    mesh files of inputs/ beside it when a body reads one (the path is relative)."""
+    folder.mkdir()
+    path = folder / f"{scene}.toml"
+    path.write_text(tomli_w.dumps(raw))
+    if any(body.get("shape") == "mesh" for body in raw.get("bodies", [])):
+        shutil.copytree(INPUTS / "meshes", folder / "meshes")
+    return path
 
 
 def run_scene(path: Path, fields=FIELDS) -> tuple[dict, dict]:

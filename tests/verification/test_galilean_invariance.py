@@ -23,10 +23,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import tomli_w
 
 from hpcmpm.scene import apply_overrides
-from scene_helpers import run_scene
+from scene_helpers import run_scene, write_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 AXES = "xyz"
@@ -72,10 +71,7 @@ def boosted_pair(raw: dict, dt: float, cells: list[int], tmp: Path, scene: str):
             for entry in scene_raw.get(table, []):
                 entry["velocity"] = [float(a + b) for a, b in
                                      zip(entry.get("velocity", [0.0] * dim), boost)]
-        (tmp / name).mkdir()
-        path = tmp / name / f"{scene}.toml"
-        path.write_text(tomli_w.dumps(scene_raw))
-        paths.append(path)
+        paths.append(write_scene(tmp / name, scene, scene_raw))
     return paths, u
 
 

@@ -24,10 +24,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import tomli_w
 
 from hpcmpm.scene import apply_overrides
-from scene_helpers import run_scene
+from scene_helpers import run_scene, write_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 VECTOR_KEYS = {"lower", "upper", "velocity", "gravity", "center", "half_extents", "point",
@@ -123,12 +122,8 @@ def test_a_turned_scene_gives_the_turned_result(tmp_path, scene, end_time, extra
     assert not apply_overrides(raw, sets, scene)
     dim = raw["simulation"]["dim"]
     perm = [1, 0] if dim == 2 else [2, 0, 1]
-    paths = []
-    for name, scene_raw in (("as_given", raw), ("turned", turned(raw, perm))):
-        (tmp_path / name).mkdir()
-        path = tmp_path / name / f"{scene}.toml"
-        path.write_text(tomli_w.dumps(scene_raw))
-        paths.append(path)
+    paths = [write_scene(tmp_path / name, scene, scene_raw)
+             for name, scene_raw in (("as_given", raw), ("turned", turned(raw, perm)))]
     start_a, a = run_scene(paths[0])
     start_b, b = run_scene(paths[1])
     assert a["steps"] == b["steps"] > 0

@@ -19,16 +19,14 @@ is 1; psi_p of the bond-plasticity model scales as R^2 S^-4 T^-4 in 3D, R^2 S^-2
 from __future__ import annotations
 
 import copy
-import shutil
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
-import tomli_w
 
 from hpcmpm.scene import apply_overrides
-from scene_helpers import run_scene
+from scene_helpers import run_scene, write_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 R = 2.0 ** -30    # densities
@@ -144,16 +142,10 @@ def test_a_scene_in_other_units_gives_the_same_run_bitwise(tmp_path, scene, frac
     end = raw["simulation"]["end_time"] * fraction
     assert not apply_overrides(raw, [f"simulation.end_time={end}", f"output.every={end}"],
                                scene)
-    paths = []
     flow_indices = {m.get("flow_index", 1.0) for m in raw["materials"]}
     t = T if flow_indices <= {1.0} else 1.0
-    for name, scene_raw in (("si", raw), ("scaled", rescaled(raw, R, S, t))):
-        (tmp_path / name).mkdir()
-        path = tmp_path / name / f"{scene}.toml"
-        path.write_text(tomli_w.dumps(scene_raw))
-        if (ROOT / "inputs" / "meshes").is_dir():
-            shutil.copytree(ROOT / "inputs" / "meshes", tmp_path / name / "meshes")
-        paths.append(path)
+    paths = [write_scene(tmp_path / name, scene, scene_raw)
+             for name, scene_raw in (("si", raw), ("scaled", rescaled(raw, R, S, t)))]
     _, a = run_scene(paths[0], fields=None)
     _, b = run_scene(paths[1], fields=None)
     assert a["steps"] == b["steps"] > 0
