@@ -1,6 +1,6 @@
 """Scene keys and model construction of the 003 ch. 5 peridynamic models, for the material
 ``type = "peridynamic"`` (peridynamic.py): ``model = "bond_energy"`` (eq. 5.5-5.6, with bond
-plasticity eq. 5.8-5.11: ``plastic_yield``), ``model = "viscoelastic_lps"`` (eq. 5.12-5.20:
+plasticity eq. 5.8-5.11: ``plastic_yield`` or ``plastic_yield_stretch``), ``model = "viscoelastic_lps"`` (eq. 5.12-5.20:
 ``relaxation_time``, ``memory``) and crack planes (003 §5.4: ``crack_threshold``,
 ``two_time_integration``). The physics is in hpcmpm/pd/bond_energy.py, viscoelastic_lps.py and
 crack_planes.py; this module only reads the keys (kept apart from peridynamic.py so that file
@@ -22,6 +22,10 @@ EXTRA_PARAMETERS = {
     "plastic_yield": Param(0.0, math.inf, False, math.inf, high_inclusive=True,
                            doc="bond_energy: psi_p of the bond yield function (003 eq. 5.10); "
                                "inf: elastic"),
+    "plastic_yield_stretch": Param(0.0, math.inf, False, math.inf, high_inclusive=True,
+                                   doc="bond_energy: the deviatoric stretch at which a bond "
+                                       "of length delta and unit influence yields (sets "
+                                       "psi_p at any dx); inf: elastic"),
     "relaxation_time": Param(0.0, math.inf, False, math.inf, high_inclusive=True,
                              doc="viscoelastic_lps: Maxwell time tau of the deviatoric part; "
                                  "inf: elastic"),
@@ -38,7 +42,8 @@ EXTRA_PARAMETERS = {
 
 # Keys that only mean something for one model: set for another, they are an error, not
 # silently ignored.
-_ONLY = {"plastic_yield": ("bond_energy",), "relaxation_time": ("viscoelastic_lps",),
+_ONLY = {"plastic_yield": ("bond_energy",), "plastic_yield_stretch": ("bond_energy",),
+         "relaxation_time": ("viscoelastic_lps",),
          "memory": ("viscoelastic_lps",)}
 
 
@@ -49,9 +54,31 @@ def check_chapter5(prm: dict, where: str) -> None:
         if prm[key] != default and prm["model"] not in models:
             raise SceneError(f"{where}: {key}: only for model = {' or '.join(models)} "
                              f"(got model = {prm['model']!r})")
+    if prm["plastic_yield"] < math.inf and prm["plastic_yield_stretch"] < math.inf:
+        raise SceneError(f"{where}: plastic_yield_stretch: sets the same yield as "
+                         "plastic_yield (psi_p); give one of them")
     if prm["crack_threshold"] is not None and prm["fracture_energy"] is not None:
         raise SceneError(f"{where}: crack_threshold: crack planes replace the stretch "
                          "criterion; remove fracture_energy")
+
+
+def has_bond_plasticity(prm: dict) -> bool:
+    """Whether a bond-energy body yields (either yield key set)."""
+    return prm["plastic_yield"] < math.inf or prm["plastic_yield_stretch"] < math.inf
+
+
+def bond_yield_energy(material) -> float:
+    """psi_p of eq. 5.10 for ``model = "bond_energy"``: ``plastic_yield`` as given, or the
+    one ``plastic_yield_stretch`` names at this material's horizon and spacing
+    (bond_energy.yield_energy_of_stretch); inf without plasticity."""
+    prm = material.params
+    if prm["plastic_yield_stretch"] == math.inf:
+        return prm["plastic_yield"]
+    from ..pd.bond_energy import yield_energy_of_stretch
+
+    beta, _ = _bond_energy_scale(material)
+    return yield_energy_of_stretch(beta, material.lam, material.mu, material.delta,
+                                   prm["plastic_yield_stretch"])
 
 
 def _bond_energy_scale(material) -> tuple[float, tuple]:
@@ -80,8 +107,9 @@ def make_chapter5_model(material, s0: float, c_dt: float):
         from ..pd.bond_energy import BondEnergy
 
         beta, _ = _bond_energy_scale(material)
-        return BondEnergy(material.dim, material.lam, material.mu, beta, prm["plastic_yield"],
-                          s0, c_dt, material.clamp_faces, material.clamp_array())
+        return BondEnergy(material.dim, material.lam, material.mu, beta,
+                          bond_yield_energy(material), s0, c_dt, material.clamp_faces,
+                          material.clamp_array())
     from ..pd.viscoelastic_lps import ViscoelasticLPS
 
     return ViscoelasticLPS(material.bulk, material.mu, prm["relaxation_time"], prm["memory"],

@@ -44,7 +44,7 @@ from ..pd.load import ACTIVE_BONDS
 from ..state import SCALAR, VECTOR, FieldSpec
 from .base import ElasticMaterial, Material
 from .params import YOUNG, Param, choice, resolve_params
-from .pd_models import EXTRA_PARAMETERS, check_chapter5
+from .pd_models import EXTRA_PARAMETERS, check_chapter5, has_bond_plasticity
 
 
 def _point(x) -> str:
@@ -246,7 +246,7 @@ class Peridynamic(Material):
         if model == "bond_energy":
             from ..pd.bond_energy import PLASTIC_STATE
 
-            return (PLASTIC_STATE,) if self.params["plastic_yield"] < math.inf else ()
+            return (PLASTIC_STATE,) if has_bond_plasticity(self.params) else ()
         if model == "viscoelastic_lps":
             from ..pd.viscoelastic_lps import state_fields
 
@@ -258,7 +258,7 @@ class Peridynamic(Material):
         plasticity and the viscoelastic history (after `configure`: it depends on the
         walls)."""
         nf, model = len(self.clamp_faces), self.params["model"]
-        if model == "bond_energy" and self.params["plastic_yield"] < math.inf:
+        if model == "bond_energy" and has_bond_plasticity(self.params):
             from ..pd.bond_energy import mirror_state_names
 
             return mirror_state_names(nf)

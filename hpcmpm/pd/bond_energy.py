@@ -23,6 +23,7 @@ point's mean bond stretch and e_dev = e - e_iso,
     E_dev = (w beta (2 mu + lambda) / |X|) (e_dev - e_p),      f = E_dev^2 / 2 - psi_p  (5.10)
     f > 0:  de_p = |X| (E_dev - sqrt(2 psi_p) sign E_dev) / (w beta (2 mu + lambda))
 
+(psi_p is ``plastic_yield``, or from ``plastic_yield_stretch`` by `yield_energy_of_stretch`),
 which puts the bond exactly on f = 0 (eq. 5.11 divides by lambda instead of w (2 mu + lambda)
 and does not return to the yield surface). A return that would lengthen the bond's elastic
 stretch |e - e_p| is not taken (the bond stays outside the surface until the flow relaxes
@@ -87,6 +88,23 @@ def bond_energy_scale(dim: int, lam: float, mu: float, family_sum: float) -> flo
     """beta = d^2 K / ((2 mu + lambda) sum_q w V_q), K = lambda + 2 mu / d."""
     bulk = lam + 2.0 * mu / dim
     return dim * dim * bulk / ((2.0 * mu + lam) * family_sum)
+
+
+def yield_energy_of_stretch(scale: float, lam: float, mu: float, delta: float,
+                            stretch: float) -> float:
+    """psi_p (eq. 5.10) at which a bond of length ``delta`` (the horizon) and influence w = 1
+    yields at the deviatoric stretch |e_dev - e_p| = ``stretch``: (beta (2 mu + lambda) s_y /
+    delta)^2 / 2. A bond of length |X| and influence w then yields at s_y |X| / (w delta).
+    At a horizon fixed in spacings psi_p scales as delta^-(2d + 2) (beta ~ delta^-d), so the
+    same s_y is the same material at any dx (the yield pattern is scale free), where a fixed
+    psi_p is not (its yield stretch grows as delta^(d + 1))."""
+    return 0.5 * (scale * (2.0 * mu + lam) * stretch / delta) ** 2
+
+
+def yield_stretch_of_energy(scale: float, lam: float, mu: float, delta: float,
+                            psi_p: float) -> float:
+    """The s_y of `yield_energy_of_stretch` that gives ``psi_p`` (for the run log)."""
+    return math.sqrt(2.0 * psi_p) * delta / (scale * (2.0 * mu + lam))
 
 
 def time_step_micromodulus(dim: int, spacing: float, delta: float, influence: str,

@@ -225,6 +225,8 @@ def test_off_grid_pd_body_stops_at_a_wall(condition):
     ("ibmpm_wall_fracture_2d", (), 1, 1),     # plastic stretch; the floor clamp's ghosts
     ("ibmpm_wall_fracture_2d", ('materials.wall.clamp="none"',), 1, 0),
     ("ibmpm_wall_fracture_2d", ("materials.wall.plastic_yield=inf",), 0, 0),   # elastic
+    ("ibmpm_wall_fracture_2d", ("materials.wall.plastic_yield=inf",
+                                "materials.wall.plastic_yield_stretch=0.01"), 1, 1),
     ("ibmpm_cream_pie_2d", (), 3, 0),                   # the pie starts out of the wall's reach
     ("ibmpm_cream_pie_2d", ("bodies.0.center=[1.84, 0.6]",), 3, 5),       # clamped
     # memory = "none" stores no forces: the lengths only, on the bonds and in the store.

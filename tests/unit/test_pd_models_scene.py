@@ -9,11 +9,11 @@ import pytest
 
 from hpcmpm.errors import SceneError
 from hpcmpm.materials import make_material
-from hpcmpm.pd.bond_energy import BondEnergy
+from hpcmpm.pd.bond_energy import PLASTIC_STATE, BondEnergy, yield_energy_of_stretch
 from hpcmpm.pd.families import full_family_sum
 from hpcmpm.pd.viscoelastic_lps import ViscoelasticLPS
 from hpcmpm.runner import initial_particles, make_domain
-from hpcmpm.scene import parse_scene
+from hpcmpm.scene import load_scene, parse_scene
 from hpcmpm.simulation import Simulation
 
 PLATE = open("inputs/pd_plate_tear_2d.toml").read()
@@ -37,6 +37,12 @@ def sim_with(old: str, new: str) -> Simulation:
      "relaxation_time: must be > 0"),
     ('model = "pmb"', 'model = "bond_energy"\nplastic_yield = -1.0',
      "plastic_yield: must be > 0"),
+    ('model = "pmb"', 'model = "pmb"\nplastic_yield_stretch = 0.01',
+     "plastic_yield_stretch: only for model = bond_energy (got model = 'pmb')"),
+    ('model = "pmb"', 'model = "bond_energy"\nplastic_yield_stretch = 0.0',
+     "plastic_yield_stretch: must be > 0"),
+    ('model = "pmb"', 'model = "bond_energy"\nplastic_yield = 1.0\nplastic_yield_stretch = 0.01',
+     "plastic_yield_stretch: sets the same yield as plastic_yield (psi_p); give one of them"),
     ('model = "pmb"', 'model = "pmb"\ncrack_threshold = 0.05',
      "crack_threshold: crack planes replace the stretch criterion; remove fracture_energy"),
     ('model = "pmb"', 'model = "pmb"\ntwo_time_integration = 1',
@@ -68,6 +74,24 @@ def test_bond_energy_keys_build_the_model_with_beta():
     E, nu = mat.params["E"], mat.params["nu"]
     assert abs(lam / (E * nu / ((1 + nu) * (1 - 2 * nu))) - 1) < 1e-12
     assert 0 < mat.dt_limit(scene.dx) < math.inf
+
+
+def test_yield_stretch_key_sets_psi_p_at_the_materials_horizon():
+    """``plastic_yield_stretch`` reaches the model as the psi_p of a bond of length delta
+    (this material's horizon, not its spacing) and unit influence yielding at s_y; at half
+    the dx it is 2^(2d + 2) = 64 times larger (2D), where ``plastic_yield`` stays put."""
+    text = PLATE.replace('model = "pmb"', 'model = "bond_energy"\nplastic_yield_stretch = '
+                         '0.01').replace("nu = 0.25 ", "nu = 0.3 ")
+    psi = []
+    assert "dx = 0.02\n" in text
+    for dx in ("0.02", "0.01"):
+        scene, mat = configured(text.replace("dx = 0.02\n", f"dx = {dx}\n"))
+        model = mat.make_model()
+        s = mat.delta / (model.beta * (2 * mat.mu + mat.lam) * 0.01)
+        assert abs(0.5 / (s * s) / model.psi_p - 1) < 1e-14
+        assert PLASTIC_STATE in mat.bond_state_names()
+        psi.append(model.psi_p)
+    assert abs(psi[1] / psi[0] / 64 - 1) < 1e-12
 
 
 def test_viscoelastic_keys_build_the_model():
@@ -288,3 +312,34 @@ def test_crack_planes_see_the_bonds_plastic_stretch():
         CrackPlanes.apply = original
     assert len(seen) == 1 and seen[0] is ext.bonds.state["plastic_stretch"]
     assert ext.crack_planes.planes == 0 and np.all(ext.bonds.status == 1)
+
+
+@pytest.mark.parametrize("key, value", [("plastic_yield_stretch", 0.0123),
+                                        ("plastic_yield", None)])
+def test_run_log_gives_the_yield_stretch_of_psi_p(caplog, key, value):
+    """The run log names psi_p with the yield stretch it amounts to at the run's spacing
+    (psi_p's unit depends on the horizon): given as a stretch, the same stretch comes back;
+    given as psi_p, the logged stretch gives psi_p back."""
+    import re
+
+    from hpcmpm.runner import simulate
+
+    sets = ["materials.wall.plastic_yield=inf", f"materials.wall.{key}={value}"] \
+        if value is not None else []
+    with caplog.at_level("INFO", logger="hpcmpm"):
+        sim = simulate(load_scene("inputs/ibmpm_wall_fracture_2d.toml", sets), end_time=1e-9)
+    said = [r.getMessage() for r in caplog.records if "bond plasticity" in r.getMessage()]
+    assert len(said) == 1
+    got = re.search(r"psi_p = (\S+), the yield stretch s_y = (\S+) of a bond of length "
+                    r"delta = (\S+) ", said[0])
+    psi_p, s_y, delta = (float(g) for g in got.groups())
+    model = sim.extensions[0].model
+    assert abs(psi_p / model.psi_p - 1) < 1e-5 and abs(delta / 0.015075 - 1) < 1e-5
+    # The logged stretch gives back psi_p through the forward rule, which the verification
+    # tests check against the bonds' yield (to the log's 6 digits: 1e-5, twice for psi_p).
+    back = yield_energy_of_stretch(model.beta, model.lam, model.mu, delta, s_y)
+    assert abs(back / model.psi_p - 1) < 2e-5
+    if value is not None:
+        assert abs(s_y / value - 1) < 1e-5
+    else:
+        assert s_y < 1e-9       # psi_p = 500 (Table 5.1): perfectly plastic, as the file says

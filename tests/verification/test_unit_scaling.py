@@ -54,7 +54,7 @@ DIMENSIONLESS = {"nu", "critical_stretch", "crack_threshold", "gamma0", "s", "fl
                  "yield_strain", "stabilization", "max_bond_stretch", "skin", "q1", "q2",
                  "max_exponent", "normal", "axis", "friction", "jitter", "seed", "rotation",
                  "cfl", "dim", "particles_per_cell", "tolerance", "newton_tolerance",
-                 "max_iterations"}
+                 "max_iterations", "plastic_yield_stretch"}
 
 
 def special(key: str, table: dict, dim: int) -> tuple[float, float, float] | None:
