@@ -41,7 +41,7 @@ fi
 # own order) had every rank of a launch compile the same kernels at once.
 [ $# -gt 0 ] || set -- tests/unit tests/verification tests/mpi
 # -rs (also in pyproject's addopts): every skipped test is listed with its reason.
-(. scripts/env.sh && python -m pytest -q -rs "$@")
+(. scripts/env.sh && python -m pytest -q -rs --durations=30 "$@")
 [ "$mpio" = 1 ] || exit 0
 echo "== parallel HDF5 environment (scripts/setup_parallel_hdf5.sh, built during the suite) =="
 # Where root and apt-get allow the parallel-HDF5 build, its failure fails this command;
