@@ -75,3 +75,40 @@ def test_architecture_shows_current_signatures():
         assert shown, name
         assert [a.split("=")[0].strip() for a in shown.group(1).split(",")] == params, \
             (name, shown.group(1), params)
+
+
+def test_scene_format_documents_every_key():
+    """Every key the scene check accepts and every material parameter appears in
+    docs/scene-format.md (`flow_update` of herschel_bulkley and von_mises was accepted,
+    defaulted and changed the physics, with no line there). Scene keys: the tables of
+    scene.py and the literal key lists of its ``c.keys`` checks; documented as `key`, as
+    ``key =`` in an example, or as a ``[key]`` table header. Material parameters: as `key`,
+    which is how the key tables write them."""
+    import hpcmpm.scene as scene
+    from hpcmpm.materials import MATERIALS
+    from hpcmpm.materials.failure import SHARED_KEYS
+    from hpcmpm.materials.params import MATERIAL_TABLE_KEYS
+
+    doc = (ROOT / "docs" / "scene-format.md").read_text()
+    source = (ROOT / "hpcmpm" / "scene.py").read_text()
+    keys = set(scene.SIMULATION_KEYS) | set(scene.COMMON_BODY_KEYS) | set(scene.TOP_KEYS)
+    for table in (scene.BODY_KEYS, scene.COLLIDER_KEYS):
+        for names in table.values():
+            keys |= set(names)
+    for call in re.finditer(r"c\.keys\(([^)]*)\)", source):
+        keys |= set(re.findall(r'"([a-z_0-9]+)"', call.group(1)))
+    assert len(keys) > 60
+
+    def documented(key):
+        return (f"`{key}`" in doc or f"[{key}]" in doc
+                or re.search(rf"(^|[{{,]\s*){key}\s*=", doc, re.M) is not None)
+
+    assert sorted(k for k in keys if not documented(k)) == []
+    missing = {name: [k for k in cls.parameters if f"`{k}`" not in doc]
+               for name, cls in MATERIALS.items()}
+    for name, cls in MATERIALS.items():         # sub-tables: eos, hardening, failure
+        for key, param in cls.parameters.items():
+            missing[f"{name}.{key}"] = [k for k in (param.schema or ()) if not documented(k)]
+    missing["(every material)"] = [k for k in MATERIAL_TABLE_KEYS + tuple(SHARED_KEYS)
+                                   if f"`{k}`" not in doc]
+    assert {name: keys for name, keys in missing.items() if keys} == {}
