@@ -56,7 +56,8 @@ def check_chapter5(prm: dict, where: str) -> None:
                              f"(got model = {prm['model']!r})")
     if prm["plastic_yield"] < math.inf and prm["plastic_yield_stretch"] < math.inf:
         raise SceneError(f"{where}: plastic_yield_stretch: sets the same yield as "
-                         "plastic_yield (psi_p); give one of them")
+                         "plastic_yield (psi_p); give one of them (an override replacing "
+                         "one sets the other to inf)")
     if prm["crack_threshold"] is not None and prm["fracture_energy"] is not None:
         raise SceneError(f"{where}: crack_threshold: crack planes replace the stretch "
                          "criterion; remove fracture_energy")
