@@ -1,10 +1,10 @@
 """Scene keys and model construction of the 003 ch. 5 peridynamic models, for the material
 ``type = "peridynamic"`` (peridynamic.py): ``model = "bond_energy"`` (eq. 5.5-5.6, with bond
-plasticity eq. 5.8-5.11: ``plastic_yield`` or ``plastic_yield_stretch``), ``model = "viscoelastic_lps"`` (eq. 5.12-5.20:
-``relaxation_time``, ``memory``) and crack planes (003 §5.4: ``crack_threshold``,
-``two_time_integration``). The physics is in hpcmpm/pd/bond_energy.py, viscoelastic_lps.py and
-crack_planes.py; this module only reads the keys (kept apart from peridynamic.py so that file
-needs only hook lines)."""
+plasticity eq. 5.8-5.11: ``plastic_yield`` or ``plastic_yield_stretch``),
+``model = "viscoelastic_lps"`` (eq. 5.12-5.20: ``relaxation_time``, ``memory``) and crack
+planes (003 §5.4: ``crack_threshold``, ``two_time_integration``). The physics is in
+hpcmpm/pd/bond_energy.py, viscoelastic_lps.py and crack_planes.py; this module only reads the
+keys (kept apart from peridynamic.py so that file needs only hook lines)."""
 
 from __future__ import annotations
 
@@ -43,8 +43,7 @@ EXTRA_PARAMETERS = {
 # Keys that only mean something for one model: set for another, they are an error, not
 # silently ignored.
 _ONLY = {"plastic_yield": ("bond_energy",), "plastic_yield_stretch": ("bond_energy",),
-         "relaxation_time": ("viscoelastic_lps",),
-         "memory": ("viscoelastic_lps",)}
+         "relaxation_time": ("viscoelastic_lps",), "memory": ("viscoelastic_lps",)}
 
 
 def check_chapter5(prm: dict, where: str) -> None:
