@@ -348,9 +348,11 @@ VALIDATE_COUNT_LIMIT = 50_000_000
 
 def validate_report(scene) -> str:
     """The line `hpcmpm validate` prints: particle count and the memory estimate on one rank
-    against this machine's available memory (with the rank count that would fit)."""
+    against this machine's available memory (with the rank count that would fit), then the
+    materials' notes (`Material.notes`: e.g. bond plasticity's yield stretch)."""
     from .geometry import body_lattice, count_overlaps, count_scene, estimate_count, \
         overlap_warning
+    from .simulation import configured_materials
 
     lattice_points = sum(body_lattice(b, scene).size for b in scene.bodies
                          if b.shape != "box")
@@ -364,14 +366,16 @@ def validate_report(scene) -> str:
         count, exact = estimate_count(scene)
     estimate = estimate_memory(scene, count, 1, exact, body_counts)
     available = available_memory()
+    notes = "".join(f"\n{scene.path}: {line}" for material in
+                    configured_materials(scene, scene.dim) for line in material.notes())
     head = (f"{scene.path}: ok ({'' if exact else 'about '}{counted(count, 'particle')}, "
             f"{counted(len(scene.materials), 'material')}, dim {scene.dim})")
     if warning:
         head = f"{head}\n{warning}"
     memory = f"{scene.path}: memory estimate: {estimate.describe()}"
     if available is None:
-        return f"{head}\n{memory}"
+        return f"{head}\n{memory}{notes}"
     problem = memory_problem(scene, estimate, 1, available, body_counts)
     if problem:
         return f"{head}\n{problem}"
-    return f"{head}\n{memory}; {format_bytes(available)} available here"
+    return f"{head}\n{memory}; {format_bytes(available)} available here{notes}"

@@ -99,6 +99,11 @@ class Material:
         """Called once the scene is known (grid spacing, time-step limits): a model that
         needs them reads them here, and raises SceneError for a combination it cannot run."""
 
+    def notes(self) -> list[str]:
+        """Lines worth telling the user about this material in its scene (the run log and
+        `hpcmpm validate` print them); none by default. Call after `configure`."""
+        return []
+
     def side_bytes_per_particle(self) -> int:
         """Bytes a particle of this material holds outside the particle fields (peridynamic
         bonds), for the start-up memory estimate; 0 by default. Call after `configure`."""

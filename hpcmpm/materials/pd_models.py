@@ -81,6 +81,23 @@ def bond_yield_energy(material) -> float:
                                    prm["plastic_yield_stretch"])
 
 
+def bond_yield_description(material) -> str | None:
+    """One line naming a bond-energy body's psi_p and the yield stretch s_y it amounts to at
+    this material's spacing (psi_p's unit depends on the horizon, a stretch's does not), or
+    None without bond plasticity. For the run log and ``hpcmpm validate``."""
+    prm = material.params
+    if prm["model"] != "bond_energy" or not has_bond_plasticity(prm):
+        return None
+    from ..pd.bond_energy import yield_stretch_of_energy
+
+    beta, _ = _bond_energy_scale(material)
+    psi_p = bond_yield_energy(material)
+    s_y = yield_stretch_of_energy(beta, material.lam, material.mu, material.delta, psi_p)
+    return (f"material {material.spec.name!r}: bond plasticity psi_p = {psi_p:.6g}, the yield "
+            f"stretch s_y = {s_y:.6g} of a bond of length delta = {material.delta:.6g} with "
+            f"unit influence (plastic_yield_stretch)")
+
+
 def _bond_energy_scale(material) -> tuple[float, tuple]:
     from ..pd.bond_energy import bond_energy_scale
     from ..pd.families import full_family_sum

@@ -44,7 +44,8 @@ from ..pd.load import ACTIVE_BONDS
 from ..state import SCALAR, VECTOR, FieldSpec
 from .base import ElasticMaterial, Material
 from .params import YOUNG, Param, choice, resolve_params
-from .pd_models import EXTRA_PARAMETERS, check_chapter5, has_bond_plasticity
+from .pd_models import (EXTRA_PARAMETERS, bond_yield_description, check_chapter5,
+                        has_bond_plasticity)
 
 
 def _point(x) -> str:
@@ -220,6 +221,11 @@ class Peridynamic(Material):
                                                   self.family_radius())
             self.ghost_fraction = share_within_reach(self.clamp_faces, boxes,
                                                      self.family_radius())
+
+    def notes(self) -> list[str]:
+        """Bond plasticity's psi_p with the yield stretch it amounts to at this spacing."""
+        line = bond_yield_description(self)
+        return [line] if line else []
 
     def clamp_array(self) -> np.ndarray:
         """The kernels' clamp parameters (clamp.clamp_parameters); unused without faces."""

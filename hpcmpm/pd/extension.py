@@ -168,22 +168,11 @@ class PDExtension:
             log.info("material %r: PD clamp (mirror-image bonds) at the sticky walls %s; "
                      "clamp = \"none\" turns it off", self.material.spec.name,
                      ", ".join(face_names(faces, self.sim.scene)))
-        if getattr(self.model, "psi_p", math.inf) < math.inf and self.sim.domain.rank == 0:
-            self._log_yield()
+        if self.sim.domain.rank == 0:
+            for line in self.material.notes():
+                log.info("%s", line)
         # The halo was built before the persistent fields existed: ship them now.
         self._rebuild(start, stop)
-
-    def _log_yield(self) -> None:
-        """Bond plasticity's psi_p (eq. 5.10) with the yield stretch it amounts to at this
-        spacing: psi_p's unit depends on the horizon (docs/scene-format.md), a stretch's
-        does not."""
-        from .bond_energy import yield_stretch_of_energy
-
-        m, mat = self.model, self.material
-        log.info("material %r: bond plasticity psi_p = %.6g, the yield stretch s_y = %.6g of "
-                 "a bond of length delta = %.6g with unit influence (plastic_yield_stretch)",
-                 mat.spec.name, m.psi_p,
-                 yield_stretch_of_energy(m.beta, m.lam, m.mu, mat.delta, m.psi_p), mat.delta)
 
     def prepare(self) -> tuple[int, int]:
         """Bond rows and halo in step with the particles; positions refreshed. Collective."""

@@ -343,3 +343,17 @@ def test_run_log_gives_the_yield_stretch_of_psi_p(caplog, key, value):
         assert abs(s_y / value - 1) < 1e-5
     else:
         assert s_y < 1e-9       # psi_p = 500 (Table 5.1): perfectly plastic, as the file says
+
+
+def test_validate_names_the_yield_stretch_of_bond_plasticity():
+    """`hpcmpm validate` prints the same line as the run log for a bond-plastic body, and
+    nothing of the kind for a scene without one."""
+    from hpcmpm.startup import validate_report
+
+    report = validate_report(load_scene("inputs/ibmpm_wall_fracture_2d.toml"))
+    lines = [line for line in report.splitlines() if "bond plasticity" in line]
+    assert len(lines) == 1 and lines[0].startswith(
+        "inputs/ibmpm_wall_fracture_2d.toml: material 'wall': bond plasticity psi_p = 500, "
+        "the yield stretch s_y = ")
+    for scene in ("inputs/pd_plate_tear_2d.toml", "inputs/disks_2d.toml"):
+        assert "bond plasticity" not in validate_report(load_scene(scene))
