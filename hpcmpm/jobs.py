@@ -155,6 +155,8 @@ def jobscript_command(args, parser) -> int:
     arguments (`check_run_arguments`)."""
     extra = list(getattr(args, "extra", None) or [])
     check_run_arguments(args.scene, extra, parser)
+    # The scripts run quietly already (a batch log has no use for a progress bar).
+    extra = [a for a in extra if a != "--quiet"]
     output = getattr(args, "output", None)
     text = render(args.scheduler, args.scene, args.nodes, args.ranks_per_node, args.time,
                   out_dir=getattr(args, "out", None), activate=getattr(args, "activate", None),

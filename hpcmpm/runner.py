@@ -135,6 +135,10 @@ class Runner:
         n_global = self.domain.sum(sim.particles.n)
         progress = Progress(opts.end_time, n_global, disabled=opts.quiet or self.domain.rank)
         progress.start(sim.time, sim.step_index)
+        if self.domain.rank == 0:
+            for material in sim.materials:      # what the scene's keys amount to here
+                for line in material.notes():
+                    log.info("%s", line)
         last_ckpt_wall = time.monotonic()
         if not self.first_frame_written:
             self.write_frame()

@@ -531,6 +531,15 @@ class LeftCauchyGreenMaterial(Material):
                                   and self.dim == 2)
         return []
 
+    def notes(self) -> list[str]:
+        """Which plastic update ``flow_update = "auto"`` chose for this scene."""
+        if self.params.get("flow_update") != "auto":
+            return []
+        chosen = ("implicit (the end-of-step variational return: the semi-implicit integrator "
+                  "in 2D)" if self.mode == HB_IMPLICIT else "explicit (000 §4.6.2, the flow "
+                  "at t^n)")
+        return [f"material {self.spec.name!r}: flow_update = \"auto\" runs {chosen}"]
+
     def dt_limit(self, dx: float) -> float:
         """Explicit viscous limit rho dx^2 / (2 d mu_N) (unbounded without viscosity)."""
         if self.viscosity == 0.0:

@@ -168,9 +168,6 @@ class PDExtension:
             log.info("material %r: PD clamp (mirror-image bonds) at the sticky walls %s; "
                      "clamp = \"none\" turns it off", self.material.spec.name,
                      ", ".join(face_names(faces, self.sim.scene)))
-        if self.sim.domain.rank == 0:
-            for line in self.material.notes():
-                log.info("%s", line)
         # The halo was built before the persistent fields existed: ship them now.
         self._rebuild(start, stop)
 

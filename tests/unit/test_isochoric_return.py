@@ -209,19 +209,26 @@ def test_b_stays_spd_at_large_steps(case):
 
 
 def test_flow_update_choice():
-    """"auto" is implicit under the semi-implicit integrator in 2D and explicit otherwise;
-    "implicit" in 3D is refused with one line naming the key."""
+    """"auto" is implicit under the semi-implicit integrator in 2D and explicit otherwise,
+    and its note (run log, `hpcmpm validate`) names the choice; "implicit" in 3D is refused
+    with one line naming the key."""
     for kind, explicit in (("herschel_bulkley", HB), ("von_mises", VM)):
         mat = material(kind, 2)
         assert mat.mode == explicit  # before configure: explicit
         mat.configure(SimpleNamespace(integrator="semi_implicit", dx=0.1, dt=0.01))
         assert mat.mode == HB_IMPLICIT
+        (note,) = mat.notes()
+        assert 'flow_update = "auto" runs implicit' in note
         mat = material(kind, 2)
         mat.configure(SimpleNamespace(integrator="explicit", dx=0.1, dt=0.01))
         assert mat.mode == explicit
+        (note,) = mat.notes()
+        assert 'flow_update = "auto" runs explicit' in note
         mat = material(kind, 3)
         mat.configure(SimpleNamespace(integrator="semi_implicit", dx=0.1, dt=0.01))
         assert mat.mode == explicit
+        assert 'runs explicit' in mat.notes()[0]
+        assert material(kind, 2, flow_update="explicit").notes() == []  # chosen: no note
         with pytest.raises(SceneError, match="flow_update: 'implicit' is built for 2D only"):
             material(kind, 3, flow_update="implicit")
 

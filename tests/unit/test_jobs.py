@@ -179,14 +179,15 @@ def test_checkpoint_signal_comes_a_tenth_of_the_wall_time_early(walltime, second
 def test_jobscript_defaults_and_extra_run_arguments_reach_the_script(tmp_path, monkeypatch,
                                                                      capsys):
     """Without --nodes / --ranks-per-node the job asks for 1 node with 1 rank (the documented
-    defaults), and the `hpcmpm run` arguments after `--` are on the launched command line."""
+    defaults), and the `hpcmpm run` arguments after `--` are on the launched command line
+    (`--quiet`, which the script passes anyway, once)."""
     from hpcmpm import cli
 
     scene = Path("inputs/bar_2d.toml").resolve()
     monkeypatch.chdir(tmp_path)
     assert cli.main(["jobscript", "--scheduler", "slurm", "--time", "00:10:00",
                      "--activate", "true", "-o", "job.sh", str(scene), "--",
-                     "--end-time", "0.5", "--set", "simulation.cfl=0.3"]) == 0
+                     "--end-time", "0.5", "--quiet", "--set", "simulation.cfl=0.3"]) == 0
     text = (tmp_path / "job.sh").read_text()
     assert "#SBATCH --nodes=1\n" in text and "#SBATCH --ntasks-per-node=1\n" in text
     bin_dir = tmp_path / "bin"
