@@ -112,3 +112,24 @@ def test_scene_format_documents_every_key():
     missing["(every material)"] = [k for k in MATERIAL_TABLE_KEYS + tuple(SHARED_KEYS)
                                    if f"`{k}`" not in doc]
     assert {name: keys for name, keys in missing.items() if keys} == {}
+
+
+def test_readme_names_every_command_line_option():
+    """Each subcommand and each of its long options appears in README.md (`hpcmpm
+    jobscript`'s --activate and --output had no word there)."""
+    import argparse
+
+    from hpcmpm.cli import build_parser
+
+    readme = (ROOT / "README.md").read_text()
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert len(sub.choices) >= 7
+    missing = []
+    for name, command in sub.choices.items():
+        if f"hpcmpm {name}" not in readme:
+            missing.append(name)
+        for action in command._actions:
+            missing += [f"{name} {o}" for o in action.option_strings
+                        if o.startswith("--") and o != "--help" and o not in readme]
+    assert missing == []
