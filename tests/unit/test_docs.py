@@ -133,3 +133,19 @@ def test_readme_names_every_command_line_option():
             missing += [f"{name} {o}" for o in action.option_strings
                         if o.startswith("--") and o != "--help" and o not in readme]
     assert missing == []
+
+
+def test_output_md_names_every_particle_field():
+    """Every particle field a scene can hold (core, deformation, material and SPB fields,
+    `C`, `tau`), which `output.fields` may name, appears in docs/output.md."""
+    from hpcmpm.materials import MATERIALS
+    from hpcmpm.materials.failure import SPB_FIELDS
+    from hpcmpm.state import CORE_FIELDS, DEFORMATION_FIELDS
+
+    doc = (ROOT / "docs" / "output.md").read_text()
+    names = set(CORE_FIELDS) | set(DEFORMATION_FIELDS) | set(SPB_FIELDS) | {"C", "tau",
+                                                                          "Fe", "Fe_prev"}
+    for cls in MATERIALS.values():
+        names |= set(getattr(cls, "fields", None) or {})
+    assert len(names) > 25
+    assert sorted(n for n in names if f"`{n}`" not in doc) == []
