@@ -365,9 +365,11 @@ class PDBodyExtension(CheckpointedBonds, PDExtension):
     def __init__(self, sim, material):
         super().__init__(sim, material)
         self.boundaries = OffGridBoundaries(sim.scene)
-        if sim.uses_grid and sim.domain is not None and sim.domain.rank == 0:
+        has_bodies = any(b.material == material.spec.name for b in sim.scene.bodies)
+        if sim.uses_grid and has_bodies and sim.domain is not None and sim.domain.rank == 0:
             # Nothing couples off-grid PD particles to the grid's bodies: say so, or a
-            # projectile passes through its target without a word.
+            # projectile passes through its target without a word (a material no body uses
+            # has nothing to say it about).
             log.warning("%s: warning: material %r (integration = \"pd\") moves off the grid: "
                         "its bodies and the grid's bodies pass through each other (no contact); "
                         "integration = \"grid\" couples them through the grid", self._where(),

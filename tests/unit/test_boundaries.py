@@ -7,6 +7,8 @@ completeness, 000 §3.2)."""
 
 import types
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -658,6 +660,14 @@ def test_off_grid_pd_beside_grid_bodies_is_warned_about(caplog):
     caplog.clear()
     with caplog.at_level("WARNING", logger="hpcmpm"):
         simulate(load_scene("inputs/kalthoff_winkler_2d.toml"), end_time=1e-6)
+    assert not [r for r in caplog.records if "pass through" in r.getMessage()]
+    # An off-grid PD material that no body uses has no bodies to pass through anything.
+    unused = Path("inputs/disks_2d.toml").read_text() + (
+        '\n[[materials]]\nname = "spare"\ntype = "peridynamic"\ndensity = 1000.0\n'
+        'E = 1e5\nnu = 0.25\n')
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="hpcmpm"):
+        simulate(parse_scene(unused, path="<unused>"), end_time=1e-3)
     assert not [r for r in caplog.records if "pass through" in r.getMessage()]
 
 
