@@ -36,12 +36,20 @@ if [ $# -eq 0 ] && [ "${HPCMPM_SKIP_MPIO:-0}" != 1 ]; then
     # A failed suite ends this script (set -e): stop the build with it.
     trap 'kill -- -"$mpio_pid" 2>/dev/null || true' EXIT
 fi
-# The whole suite runs the single-process tests first: on a fresh clone they compile the numba
-# kernels into the shared cache one process at a time, where the MPI tests (first in pytest's
-# own order) had every rank of a launch compile the same kernels at once.
-[ $# -gt 0 ] || set -- tests/unit tests/verification tests/mpi
 # -rs (also in pyproject's addopts): every skipped test is listed with its reason.
-(. scripts/env.sh && python -m pytest -q -rs --durations=30 "$@")
+if [ $# -gt 0 ]; then
+    (. scripts/env.sh && python -m pytest -q -rs --durations=30 "$@")
+else
+    # The whole suite: the single-process tests first, on two pytest-xdist workers (they
+    # compile the numba kernels into the shared cache, where the MPI tests, first in
+    # pytest's own order, had every rank of a launch compile the same kernels at once), then
+    # the MPI tests, whose launches use both cores themselves. Both parts always run.
+    status=0
+    (. scripts/env.sh && python -m pytest -q -rs --durations=30 -n 2 tests/unit \
+        tests/verification) || status=$?
+    (. scripts/env.sh && python -m pytest -q -rs --durations=30 tests/mpi) || status=$?
+    [ "$status" = 0 ] || exit "$status"
+fi
 [ "$mpio" = 1 ] || exit 0
 echo "== parallel HDF5 environment (scripts/setup_parallel_hdf5.sh, built during the suite) =="
 # Where root and apt-get allow the parallel-HDF5 build, its failure fails this command;
