@@ -14,6 +14,7 @@ from __future__ import annotations
 import itertools
 import math
 import sys
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,6 +36,9 @@ GHOST_BELOW, GHOST_ABOVE = 1, 2
 # its box (every step ends with `migrate`), so its support is inside [lo - 1, hi + 2); 3 also
 # covers a particle that crossed a face by less than 2 cells in one step (CFL <= 2).
 NEIGHBOUR_REACH = 3
+# Seconds a rank that dies of an uncaught exception waits, after printing it, before
+# MPI_Abort (`install_abort_hook`).
+ABORT_GRACE_S = 0.5
 
 
 def image_steps(n_cells: int) -> tuple[int, ...]:
@@ -613,6 +617,9 @@ class Domain(Communicator):
             previous(exc_type, exc, tb)
             sys.stderr.flush()
             sys.stdout.flush()
+            # MPI_Abort also ends the launcher's forwarding of this rank's output: give it a
+            # moment to pass the traceback on (on a loaded host only its first line came out).
+            time.sleep(ABORT_GRACE_S)
             comm.Abort(1)
 
         sys.excepthook = abort_on_exception
