@@ -67,16 +67,15 @@ def has_bond_plasticity(prm: dict) -> bool:
     return prm["plastic_yield"] < math.inf or prm["plastic_yield_stretch"] < math.inf
 
 
-def bond_yield_energy(material) -> float:
+def bond_yield_energy(material, beta: float) -> float:
     """psi_p of eq. 5.10 for ``model = "bond_energy"``: ``plastic_yield`` as given, or the
-    one ``plastic_yield_stretch`` names at this material's horizon and spacing
-    (bond_energy.yield_energy_of_stretch); inf without plasticity."""
+    one ``plastic_yield_stretch`` names at this material's horizon with its scale ``beta``
+    (`_bond_energy_scale`; bond_energy.yield_energy_of_stretch); inf without plasticity."""
     prm = material.params
     if prm["plastic_yield_stretch"] == math.inf:
         return prm["plastic_yield"]
     from ..pd.bond_energy import yield_energy_of_stretch
 
-    beta, _ = _bond_energy_scale(material)
     return yield_energy_of_stretch(beta, material.lam, material.mu, material.delta,
                                    prm["plastic_yield_stretch"])
 
@@ -91,7 +90,7 @@ def bond_yield_description(material) -> str | None:
     from ..pd.bond_energy import yield_stretch_of_energy
 
     beta, _ = _bond_energy_scale(material)
-    psi_p = bond_yield_energy(material)
+    psi_p = bond_yield_energy(material, beta)
     s_y = yield_stretch_of_energy(beta, material.lam, material.mu, material.delta, psi_p)
     return (f"material {material.spec.name!r}: bond plasticity psi_p = {psi_p:.6g}, the yield "
             f"stretch s_y = {s_y:.6g} of a bond of length delta = {material.delta:.6g} with "
@@ -125,7 +124,7 @@ def make_chapter5_model(material, s0: float, c_dt: float):
 
         beta, _ = _bond_energy_scale(material)
         return BondEnergy(material.dim, material.lam, material.mu, beta,
-                          bond_yield_energy(material), s0, c_dt, material.clamp_faces,
+                          bond_yield_energy(material, beta), s0, c_dt, material.clamp_faces,
                           material.clamp_array())
     from ..pd.viscoelastic_lps import ViscoelasticLPS
 

@@ -140,11 +140,10 @@ def test_output_md_names_every_particle_field():
     `C`, `tau`), which `output.fields` may name, appears in docs/output.md."""
     from hpcmpm.materials import MATERIALS
     from hpcmpm.materials.failure import SPB_FIELDS
+    from hpcmpm.simulation import particle_field_specs
     from hpcmpm.state import CORE_FIELDS, DEFORMATION_FIELDS
 
     doc = (ROOT / "docs" / "output.md").read_text()
-    from hpcmpm.simulation import particle_field_specs
-
     # The scene-level fields as a run declares them (C with MLS, prescribed with sets), the
     # fe plasticities' per-instance F_E fields, and tau (computed for output).
     names = set(CORE_FIELDS) | set(DEFORMATION_FIELDS) | set(SPB_FIELDS) | {

@@ -20,16 +20,22 @@ RADIUS = DELTA + 0.5
 LAM, MU = 3.0, 1.0
 
 
-def points(dim, n, jitter=0.0, seed=0):
+def points(dim, n, jitter=0.0, seed=0, h=1.0):
+    """An n^dim lattice of spacing h (volumes h^d, horizon DELTA spacings), jittered by up
+    to ``jitter`` spacings."""
     rng = np.random.default_rng(seed)
     x0, ids = lattice(dim, n)
-    x0 = x0 + rng.uniform(-jitter, jitter, x0.shape)
-    fam = find_families(x0, ids, len(x0), 1.0, DELTA)
-    return PDPoints(x0.copy(), x0.copy(), np.ones(len(x0)), ids, len(x0), fam.bonds)
+    x0 = (x0 + rng.uniform(-jitter, jitter, x0.shape)) * h
+    fam = find_families(x0, ids, len(x0), h, DELTA * h)
+    return PDPoints(x0.copy(), x0.copy(), np.full(len(x0), h ** dim), ids, len(x0), fam.bonds)
 
 
-def model(dim, psi_p=math.inf):
-    beta = bond_energy_scale(dim, LAM, MU, full_family_sum(dim, 1.0, DELTA))
+def model(dim, psi_p=math.inf, h=1.0, s_y=None):
+    """The bond-energy model at spacing h, its yield given as psi_p or as the stretch s_y
+    (`yield_energy_of_stretch`)."""
+    beta = bond_energy_scale(dim, LAM, MU, full_family_sum(dim, h, DELTA * h))
+    if s_y is not None:
+        psi_p = yield_energy_of_stretch(beta, LAM, MU, DELTA * h, s_y)
     return BondEnergy(dim, LAM, MU, beta, plastic_yield=psi_p)
 
 
@@ -37,9 +43,10 @@ def interior(x0, n):
     return np.all((x0 >= 2 * RADIUS) & (x0 <= n - 1 - 2 * RADIUS), axis=1)
 
 
-def evaluate(dim, n, F, jitter=0.0, psi_p=math.inf):
-    pts = points(dim, n, jitter)
-    m = model(dim, psi_p)
+def evaluate(dim, n, F, jitter=0.0, psi_p=math.inf, h=1.0, s_y=None):
+    """Forces after one state update (and return map) under the uniform deformation F."""
+    pts = points(dim, n, jitter, h=h)
+    m = model(dim, psi_p, h, s_y)
     m.setup(pts)
     pts.x[:] = pts.x0 @ F.T
     m.update_state(pts)
@@ -300,24 +307,10 @@ def test_plastic_form_forces_match_an_independent_implementation(dim):
     assert rel < 1e-12, rel
 
 
-def scaled_state(dim, h, F, s_y=None, psi_p=None, n=None):
-    """The same lattice body at particle spacing ``h`` (horizon DELTA spacings, volumes h^d)
-    under the uniform deformation F, after one return map with the yield given as a
-    stretch (`yield_energy_of_stretch`) or as psi_p."""
-    n = n or (12 if dim == 2 else 8)
-    x0, ids = lattice(dim, n)
-    x0 = x0 * h
-    fam = find_families(x0, ids, len(x0), h, DELTA * h)
-    pts = PDPoints(x0.copy(), x0.copy(), np.full(len(x0), h ** dim), ids, len(x0), fam.bonds)
-    beta = bond_energy_scale(dim, LAM, MU, full_family_sum(dim, h, DELTA * h))
-    if s_y is not None:
-        psi_p = yield_energy_of_stretch(beta, LAM, MU, DELTA * h, s_y)
-    m = BondEnergy(dim, LAM, MU, beta, plastic_yield=psi_p)
-    m.setup(pts)
-    pts.x[:] = pts.x0 @ F.T
-    m.update_state(pts)
-    f = np.empty((pts.n_owned, dim))
-    m.forces(pts, f)
+def scaled_state(dim, h, F, s_y=None, psi_p=math.inf):
+    """The same lattice body at particle spacing ``h`` under the uniform deformation F, after
+    one return map with the yield given as a stretch or as psi_p (`evaluate`)."""
+    pts, m, _ = evaluate(dim, 12 if dim == 2 else 8, F, psi_p=psi_p, h=h, s_y=s_y)
     return pts, m
 
 
