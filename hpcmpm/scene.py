@@ -267,6 +267,23 @@ class Checker:
             return None
         return tuple(float(v) for v in value)
 
+    def direction(self, table: dict, key: str, path: str, dim: int):
+        """A nonzero vector, returned as the unit vector along it. Scaled by its largest
+        component first: the squared length of [1e-170, 0, 0] underflows to 0 and that of
+        [1e200, 0, 0] overflows, and either gave a NaN axis (a cylinder body then sampled
+        nothing and was reported "outside the domain" with NaN bounds, or ignored its
+        length)."""
+        value = self.vector(table, key, path, dim)
+        if value is None:
+            return None
+        largest = max(abs(v) for v in value)
+        if largest == 0.0:
+            self.problem(_join(path, key), "must be a nonzero vector")
+            return None
+        scaled = [v / largest for v in value]
+        length = math.sqrt(sum(v * v for v in scaled))
+        return tuple(v / length for v in scaled)
+
     def angular(self, table: dict, key: str, path: str, dim: int):
         """2D: a scalar (about z); 3D: a 3-vector."""
         if key not in table:
@@ -724,11 +741,8 @@ def _body_params(c: Checker, b: dict, p: str, shape, dim: int, base_dir: Path):
         if dim != 3:
             c.problem(f"{p}.shape", "cylinder bodies need dim = 3 (in 2D use a box)")
             return None
-        center, axis = c.vector(b, "center", p, 3), c.vector(b, "axis", p, 3)
+        center, axis = c.vector(b, "center", p, 3), c.direction(b, "axis", p, 3)
         radius, length = c.number(b, "radius", p, low=0.0), c.number(b, "length", p, low=0.0)
-        if axis is not None and not any(axis):
-            c.problem(f"{p}.axis", "must be a nonzero vector")
-            return None
         return None if None in (center, axis, radius, length) else \
             {"center": center, "axis": axis, "radius": radius, "length": length}
     if shape == "mesh":
@@ -821,7 +835,8 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
             continue
         params = {}
         if shape == "half_space":
-            params = {"point": c.vector(t, "point", p, dim), "normal": c.vector(t, "normal", p, dim)}
+            params = {"point": c.vector(t, "point", p, dim),
+                      "normal": c.direction(t, "normal", p, dim)}
         elif shape == "sphere":
             params = {"center": c.vector(t, "center", p, dim),
                       "radius": c.number(t, "radius", p, low=0.0)}
@@ -834,7 +849,8 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
             if dim != 3:
                 c.problem(f"{p}.shape", "cylinder colliders need dim = 3")
                 continue
-            params = {"center": c.vector(t, "center", p, 3), "axis": c.vector(t, "axis", p, 3),
+            params = {"center": c.vector(t, "center", p, 3),
+                      "axis": c.direction(t, "axis", p, 3),
                       "radius": c.number(t, "radius", p, low=0.0),
                       "half_length": c.number(t, "half_length", p, low=0.0)}
         cond = c.string(t, "condition", p, "sticky", CONDITIONS)
@@ -845,9 +861,6 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
         end = c.number(t, "end", p, math.inf, low=0.0, low_open=False)
         if None in params.values() or None in (name, cond, friction, velocity, angular, start, end):
             continue
-        for key in ("normal", "axis"):
-            if key in params and not any(params[key]):
-                c.problem(f"{p}.{key}", "must be a nonzero vector")
         if end < start:
             c.problem(f"{p}.end", f"must be >= start ({start:g}), got {end:g}")
         out.append(ColliderSpec(name, shape, params, cond, friction,

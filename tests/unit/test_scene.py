@@ -272,6 +272,31 @@ def test_cylinder_body_needs_a_nonzero_axis():
                                               'length = 0.2'))
     assert lines == ["scene.toml: bodies[0].axis: must be a nonzero vector"]
 
+
+@pytest.mark.parametrize("scale", [1e-170, 1e-320, 1e200, 8e307])
+def test_a_direction_of_any_representable_length_is_its_unit_vector(scale):
+    """Axes and normals are directions: a cylinder's axis whose squared length underflows
+    (1e-170) or overflows (1e200) is the same body as the unit axis, not a NaN one (it was
+    reported outside the domain with NaN bounds, or sampled ignoring its length). Exact:
+    the scaled vector is divided by its largest component first."""
+    from hpcmpm.geometry import estimate_body_counts
+    from hpcmpm.scene import body_bounds, load_scene
+
+    base = ["bodies.bullet.axis=[2.0, 1.0, 0.0]"]
+    odd = [f"bodies.bullet.axis=[{2 * scale!r}, {scale!r}, 0.0]"]
+    unit, scaled = (load_scene("inputs/gelatin_bullet_3d.toml", o) for o in (base, odd))
+    axis = scaled.bodies[1].params["axis"]
+    assert axis == unit.bodies[1].params["axis"]
+    assert math.isclose(math.hypot(*axis), 1.0, rel_tol=1e-15)
+    assert body_bounds("cylinder", scaled.bodies[1].params, 3) == \
+        body_bounds("cylinder", unit.bodies[1].params, 3)
+    assert estimate_body_counts(scaled)[0] == estimate_body_counts(unit)[0]
+    collider = GOOD_3D.replace('shape = "sphere"', 'shape = "cylinder"').replace(
+        "radius = 0.12", f"radius = 0.12\naxis = [0.0, {scale!r}, {scale!r}]\nhalf_length = 0.1")
+    assert parse_scene(collider, "scene.toml").colliders[0].params["axis"] == \
+        (0.0, 1.0 / math.sqrt(2.0), 1.0 / math.sqrt(2.0))
+
+
 def test_every_problem_in_a_file_is_reported_in_file_order():
     text = (GOOD.replace("cfl = 0.4", "cfl = -1.0").replace('kernel = "quadratic"', 'kernl = 1')
             .replace("nu = 0.3", "nu = 0.7").replace("center = [0.75, 0.75]", "center = [2, 2]"))
