@@ -200,7 +200,9 @@ class Checker:
         return value
 
     def number(self, table: dict, key: str, path: str, default: Any = ..., low=None,
-               high=None, low_open=True, high_open=False, integer=False):
+               high=None, low_open=True, high_open=False, integer=False, finite=False):
+        """A number within the bounds. Without an upper bound +inf passes (an end time, a
+        relaxation time) unless ``finite`` (a size: an infinite radius made NaN bounds)."""
         where = _join(path, key)
         if key not in table:
             if default is ...:
@@ -213,7 +215,8 @@ class Checker:
                 (integer and not isinstance(value, int)):
             self.problem(where, f"must be {kind}, got {_describe(value)}")
             return None
-        if not integer and not math.isfinite(value) and not (value == math.inf and high is None):
+        if not integer and not math.isfinite(value) and \
+                not (value == math.inf and high is None and not finite):
             self.problem(where, f"must be finite, got {value}")
             return None
         if low is not None and (value <= low if low_open else value < low):
@@ -735,14 +738,16 @@ def _body_params(c: Checker, b: dict, p: str, shape, dim: int, base_dir: Path):
             return None
         return None if None in (lower, upper) else {"lower": lower, "upper": upper}
     if shape == "sphere":
-        center, radius = c.vector(b, "center", p, dim), c.number(b, "radius", p, low=0.0)
+        center = c.vector(b, "center", p, dim)
+        radius = c.number(b, "radius", p, low=0.0, finite=True)
         return None if None in (center, radius) else {"center": center, "radius": radius}
     if shape == "cylinder":
         if dim != 3:
             c.problem(f"{p}.shape", "cylinder bodies need dim = 3 (in 2D use a box)")
             return None
         center, axis = c.vector(b, "center", p, 3), c.direction(b, "axis", p, 3)
-        radius, length = c.number(b, "radius", p, low=0.0), c.number(b, "length", p, low=0.0)
+        radius = c.number(b, "radius", p, low=0.0, finite=True)
+        length = c.number(b, "length", p, low=0.0, finite=True)
         return None if None in (center, axis, radius, length) else \
             {"center": center, "axis": axis, "radius": radius, "length": length}
     if shape == "mesh":
@@ -773,8 +778,8 @@ def _velocity_field(c: Checker, b: dict, p: str, dim: int):
     q = f"{p}.velocity_field"
     c.keys(t, q, ("type", "amplitude", "length", "axis"))
     kind = c.string(t, "type", q, choices=("axial_mode",))
-    amp = c.number(t, "amplitude", q)
-    length = c.number(t, "length", q, low=0.0)
+    amp = c.number(t, "amplitude", q, finite=True)
+    length = c.number(t, "length", q, low=0.0, finite=True)
     axis = c.number(t, "axis", q, 0, low=0, high=dim - 1, low_open=False, integer=True)
     if None in (kind, amp, length, axis):
         return None
@@ -839,7 +844,7 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
                       "normal": c.direction(t, "normal", p, dim)}
         elif shape == "sphere":
             params = {"center": c.vector(t, "center", p, dim),
-                      "radius": c.number(t, "radius", p, low=0.0)}
+                      "radius": c.number(t, "radius", p, low=0.0, finite=True)}
         elif shape == "box":
             params = {"center": c.vector(t, "center", p, dim),
                       "half_extents": c.vector(t, "half_extents", p, dim, positive=True)}
@@ -851,8 +856,8 @@ def _colliders(c: Checker, raw: dict, dim) -> tuple:
                 continue
             params = {"center": c.vector(t, "center", p, 3),
                       "axis": c.direction(t, "axis", p, 3),
-                      "radius": c.number(t, "radius", p, low=0.0),
-                      "half_length": c.number(t, "half_length", p, low=0.0)}
+                      "radius": c.number(t, "radius", p, low=0.0, finite=True),
+                      "half_length": c.number(t, "half_length", p, low=0.0, finite=True)}
         cond = c.string(t, "condition", p, "sticky", CONDITIONS)
         friction = c.number(t, "friction", p, 0.0, low=0.0, low_open=False)
         velocity = c.vector(t, "velocity", p, dim, (0.0,) * dim)

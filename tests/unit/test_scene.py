@@ -237,6 +237,9 @@ CASES = {
                                       "[0.6, 0.5] }\n",
                                "prescribed[0].region.upper: must exceed region.lower in every "
                                "component"),
+    # A size may not be infinite (its bounds were NaN: "body lies outside the domain").
+    "infinite_radius": (GOOD.replace("radius = 0.2", "radius = inf", 1),
+                        "bodies[0].radius: must be finite, got inf"),
     # The line of "dim = 2" in the scene file (its header may grow), 1-based as TOML counts.
     "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"),
                     "TOML syntax error: Invalid value (at line "
