@@ -166,11 +166,18 @@ def estimate_memory(scene, count: int, ranks: int, exact: bool,
     (`grid_bytes`) is included, and so are the bonds of peridynamic bodies (`side_bytes`;
     ``body_counts``: the particles of each body, by default ``count`` shared as the bodies'
     shapes estimate)."""
-    per_particle = particle_bytes(scene)
+    side = side_bytes(scene, shared_body_counts(scene, count, body_counts))
+    return _estimate_on(scene, count, ranks, exact, particle_bytes(scene), side)
+
+
+def _estimate_on(scene, count: int, ranks: int, exact: bool, per_particle: int,
+                 side: tuple[float, str, str]) -> MemoryEstimate:
+    """`estimate_memory` from the parts that do not depend on the rank count: the bytes
+    per particle and the side bytes of the whole scene (`side_bytes`)."""
     factor = scene.parallel.rebalance_threshold if ranks > 1 else 1.0
     share = count / ranks * factor
     grid = grid_bytes(scene, count, ranks)
-    side, note, key = side_bytes(scene, shared_body_counts(scene, count, body_counts))
+    side, note, key = side
     side_share = int(side / ranks * factor)
     per_rank = int(share * per_particle + grid + side_share + BASE_BYTES)
     return MemoryEstimate(int(count), ranks, exact, per_particle, per_rank, side_share, note,
@@ -209,11 +216,13 @@ def ranks_needed(scene, estimate: MemoryEstimate, per_rank_here: float,
     the mean (which a 1-rank estimate leaves out) and the grid block shrinks more slowly than
     the share (`grid_bytes`); both are non-increasing beyond 2 ranks, so a bisection finds
     the least count."""
-    body_counts = shared_body_counts(scene, estimate.particles, body_counts)
+    # Built once: the bytes per particle build a Simulation, whose peridynamic materials sum
+    # their lattice families (a horizon of 256 spacings in 3D: 2.5 s a time, 16 times).
+    side = side_bytes(scene, shared_body_counts(scene, estimate.particles, body_counts))
 
     def fits(ranks: int) -> bool:
-        return estimate_memory(scene, estimate.particles, ranks, estimate.exact,
-                               body_counts).per_rank <= per_rank_here
+        return _estimate_on(scene, estimate.particles, ranks, estimate.exact,
+                            estimate.bytes_per_particle, side).per_rank <= per_rank_here
 
     lo, hi = estimate.ranks, max(2 * estimate.ranks, 2)   # lo does not fit
     while not fits(hi):

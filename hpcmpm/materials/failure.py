@@ -33,6 +33,7 @@ import math
 import numpy as np
 
 from ..state import SCALAR, VECTOR, FieldSpec
+from ..pd.families import horizon_problem
 from ..pd.load import ACTIVE_BONDS
 from .params import Param, choice, table
 
@@ -122,6 +123,12 @@ def failure_scene_problems(materials, transfer: str, integrator: str, periods=()
                              "'tensile_energy' divides by Young's modulus: needs E > 0"))
     specs = [materials[g].failure for g in groups]
     names = [materials[g].spec.name for g in groups]
+    too_wide = [(f"materials[{g}].failure.horizon", horizon_problem(materials[g].dim,
+                                                                    spec["horizon"]))
+                for g, spec in zip(groups, specs)]
+    too_wide = [problem for problem in too_wide if problem[1]]
+    if too_wide:  # the checks below and the time step would build lattices of its size
+        return problems + too_wide
     for key in SHARED_KEYS:
         values = {repr(s[key]) for s in specs}
         if len(values) > 1:

@@ -38,7 +38,8 @@ import numpy as np
 from ..pd.clamp import (NO_CLAMP, NO_FACES, clamp_parameters, faces_within_reach,
                         share_within_reach, sticky_faces)
 from ..pd.families import (DEFAULT_HORIZON, INFLUENCES, family_radius, full_family_sum,
-                           half_bonds_per_particle, horizon_length, influence_code)
+                           half_bonds_per_particle, horizon_length, horizon_problem,
+                           influence_code)
 from ..pd import moduli
 from ..pd.load import ACTIVE_BONDS
 from ..state import SCALAR, VECTOR, FieldSpec
@@ -161,11 +162,15 @@ class Peridynamic(Material):
         if prm["horizon_length"] is not None and prm["horizon_length"] < spacing:
             out.append(f"horizon_length: {prm['horizon_length']:g} is below one particle "
                        f"spacing {spacing:g} (simulation.dx / particles_per_cell)")
+        key = "horizon_length" if prm["horizon_length"] is not None else "horizon"
+        spacings = prm["horizon"] if key == "horizon" else prm["horizon_length"] / spacing
+        too_wide = horizon_problem(dim, spacings)
+        if too_wide:  # the checks below would build lattices of its size
+            return out + [f"{key}: {too_wide}"]
         lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
         # A period within the family radius puts a particle's own images in its family:
         # bonds of zero reference length once resolved (an LPS strip 1 cell wide, horizon
         # 3.015 spacings: 2 such bonds per particle, a numerical instability at step 1).
-        key = "horizon_length" if prm["horizon_length"] is not None else "horizon"
         radius = family_radius(horizon_length(spacing, prm["horizon"], prm["horizon_length"]),
                                spacing, prm["partial_volumes"])
         for axis, period in scene.periods():

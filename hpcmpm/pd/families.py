@@ -38,6 +38,22 @@ from .bonds import Bonds, image_label
 
 INFLUENCES = ("constant", "inverse", "conical", "gaussian")
 DEFAULT_HORIZON = 3.015  # in particle spacings (Silling & Askari 2005 use 3.015 dx)
+# The largest horizon a scene may ask, in particle spacings. Horizons are a few spacings
+# (3.015 above; m-convergence studies go to tens). At 256 a complete family holds about
+# 2.1e5 half-bonds in 2D and 7.1e7 in 3D (1.7 GB for one particle), and only a particle
+# 256 spacings from every face has one. Above it the lattice sums and the memory estimate
+# alone take minutes (a typo such as horizon = 3e3 ran `hpcmpm validate` out of memory).
+MAX_HORIZON_SPACINGS = 256.0
+
+
+def horizon_problem(dim: int, spacings: float) -> str | None:
+    """Why a horizon of ``spacings`` particle spacings is refused, or None."""
+    if spacings <= MAX_HORIZON_SPACINGS:
+        return None
+    r = spacings + 0.5
+    bonds = math.pi * r * r if dim == 2 else 4.0 / 3.0 * math.pi * r ** 3
+    return (f"{spacings:.6g} particle spacings is more than {MAX_HORIZON_SPACINGS:g}: a "
+            f"complete family would hold about {bonds:.2g} half-bonds per particle")
 
 
 def influence_code(name: str) -> int:
@@ -81,17 +97,38 @@ def full_family_sum(dim: int, spacing: float, delta: float, influence: str = "co
     """sum_q w |X|^power V_q over the family of a lattice point with a complete neighbourhood
     (cubic lattice of ``spacing``, V_q = spacing^d, the bond rule of `find_families`): the
     lattice sums of the bond-energy scale beta and of the Silling-Askari time step."""
-    h = spacing
+    return _lattice_sum(dim, float(spacing), float(delta), influence_code(influence),
+                        bool(partial_volumes), int(power))
+
+
+@njit(cache=True, error_model="numpy")
+def _lattice_sum(dim, h, delta, code, partial_volumes, power):
+    """`full_family_sum` point by point: no array of the (2k + 1)^d lattice points (at the
+    largest horizon a scene accepts, 256 spacings in 3D, numpy's grids took about 6 GB and
+    minutes of paging)."""
     r = family_radius(delta, h, partial_volumes)
     k = int(math.ceil(r / h))
-    axis = np.arange(-k, k + 1) * h
-    grids = np.meshgrid(*[axis] * dim, indexing="ij")
-    dist = np.sqrt(sum(g * g for g in grids)).ravel()
-    dist = dist[(dist > 0) & ((dist < r) if partial_volumes else (dist <= r))]
-    frac = np.minimum(1.0, (delta + 0.5 * h - dist) / h) if partial_volumes else 1.0
-    omega = [np.ones_like(dist), delta / dist, np.maximum(1 - dist / delta, 0),
-             np.exp(-(dist / delta) ** 2)][INFLUENCES.index(influence)]
-    return float(np.sum(omega * frac * dist ** power) * h ** dim)
+    kz = k if dim == 3 else 0
+    total = 0.0
+    for i in range(-k, k + 1):
+        xi = i * h
+        for j in range(-k, k + 1):
+            yj = j * h
+            for m in range(-kz, kz + 1):
+                zm = m * h
+                dist = math.sqrt(xi * xi + yj * yj + zm * zm)
+                if dist == 0.0:
+                    continue
+                if partial_volumes:
+                    if not dist < r:
+                        continue
+                    frac = min(1.0, (delta + 0.5 * h - dist) / h)
+                elif dist <= r:
+                    frac = 1.0
+                else:
+                    continue
+                total += influence(code, dist, delta) * frac * dist ** power
+    return total * h ** dim
 
 
 def influence_moment(name: str, power: int, delta: float) -> float:

@@ -85,7 +85,7 @@ from .correspondence import (correspondence_force_state, correspondence_forces,
                              correspondence_kinematics, correspondence_rate)
 from .energy_failure import WORK_STATE, critical_bond_energy, energy_failure
 from .extension import CheckpointedBonds
-from .families import (family_radius, find_families, half_bonds_per_particle,
+from .families import (family_radius, find_families, full_family_sum, half_bonds_per_particle,
                        periodic_images, shift_into_box)
 from .grid_energy import ENERGIES, ENERGY_HISTORY, FLAGGED_PARTICLES, grid_energy_release
 from .load import add_bond_load, bond_cost
@@ -174,16 +174,13 @@ class SPBExtension(CheckpointedBonds):
         stabilization's."""
         c = equivalent_micromodulus(self.dim, *pd_moduli(self.dim, material),
                                     self.delta) + self.G
-        h = self.delta / self.spacing
-        r = int(math.ceil(h + 0.5))
-        axis = np.arange(-r, r + 1, dtype=np.float64)
-        xi = np.stack(np.meshgrid(*[axis] * self.dim, indexing="ij"), -1).reshape(-1, self.dim)
-        n = np.linalg.norm(xi, axis=1)
-        keep = (n > 0) & (n < h + 0.5)
-        beta = np.minimum(1.0, h + 0.5 - n[keep])
-        omega = n[keep] / h if self.linear_influence else 1.0
-        k = np.sum(self.spacing ** self.dim * c * beta * omega / (n[keep] * self.spacing))
-        return 0.8 * math.sqrt(2.0 * material.density / k)
+        # sum_q V_q beta_q omega_q / |X_q| (partial volumes beta); with omega = |X| / delta
+        # that is sum_q V_q beta_q / delta.
+        if self.linear_influence:
+            k = full_family_sum(self.dim, self.spacing, self.delta) / self.delta
+        else:
+            k = full_family_sum(self.dim, self.spacing, self.delta, power=-1)
+        return 0.8 * math.sqrt(2.0 * material.density / (c * k))
 
     def dt_limit(self, sim) -> float:
         """The PD bound once PD particles exist: alone (exclusive coupling) or combined with

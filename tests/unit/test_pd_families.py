@@ -371,10 +371,10 @@ def test_partial_volumes_off_keeps_partners_at_the_horizon(dim):
 def test_full_family_sum_is_the_sum_over_an_interior_family(dim, influence, pv):
     """`full_family_sum` (the lattice sums behind the bond-energy scale and the PD time
     step) equals sum_q w_q |X_q|^k V_q over the bonds `find_families` gives an interior
-    point (checked against a brute force above), for k = -2..1. It writes the influence
-    functions and the partial volumes again (numpy), so the search's tests do not see a slip
-    there. The same weights (28 to 178 bonds) summed in another order: measured <= 2.2e-16
-    relative; 1e-13 bounds the round-off of such sums."""
+    point (checked against a brute force above), for k = -2..1: the lattice walk, the
+    family rule and the partial volumes are its own. The same weights (28 to 178 bonds)
+    summed in another order: measured <= 2.2e-16 relative; 1e-13 bounds the round-off of
+    such sums."""
     from hpcmpm.pd.families import full_family_sum
 
     h, delta = 0.5, 3.015 * 0.5
@@ -426,3 +426,18 @@ def test_images_resolve_to_the_copies_they_were_built_with_in_3d():
     b.slot[:] = -1
     assert b.resolve_slots(ids[order], pts[order], period) == 0
     assert np.array_equal(pts[order][b.slot] - x0[owner], X)
+
+
+@pytest.mark.parametrize("dim,horizon,power", [(2, 256.0, 0), (3, 128.0, 0), (3, 128.0, -1)])
+def test_full_family_sum_tends_to_the_continuum_integral_at_large_horizons(dim, horizon, power):
+    """At the largest horizons a scene accepts (families.MAX_HORIZON_SPACINGS) the lattice
+    sums approach their integrals over the ball of radius delta: sum V -> pi delta^2 or
+    4/3 pi delta^3, and in 3D sum V/|X| -> 2 pi delta^2 (in 2D that sum's lattice error near
+    |X| = 0 falls only as 1/delta: 2.4e-3 at 256). Measured: 8.2e-6 (2D, 256), 2.3e-5 and
+    1.7e-5 (3D, 128); 1e-4 bounds them. Taking the radius delta + h/2 without the partial
+    volumes moves the sum by (1 + 1/(2 delta))^d - 1 (3.9e-3, 1.2e-2), losing a lattice plane
+    by 2/(pi delta) (2.5e-3) or 3/(4 delta) (5.9e-3)."""
+    from hpcmpm.pd.families import full_family_sum
+    integral = {(2, 0): math.pi * horizon ** 2, (3, 0): 4.0 / 3.0 * math.pi * horizon ** 3,
+                (3, -1): 2.0 * math.pi * horizon ** 2}[dim, power]
+    assert full_family_sum(dim, 1.0, horizon, power=power) == pytest.approx(integral, rel=1e-4)

@@ -37,6 +37,14 @@ def sim_with(old: str, new: str) -> Simulation:
     ('model = "pmb"', 'model = "pmb"\nhorizon_length = 0.001',
      "materials[0].horizon_length: 0.001 is below one particle spacing 0.01 "
      "(simulation.dx / particles_per_cell)"),
+    # A typo of 3.0: `hpcmpm validate` ran out of memory building its lattice (and at 200
+    # spacings in 3D took 3.6 minutes to say the scene needs 1.4 TiB). pi (m + 1/2)^2
+    # half-bonds, the continuum count (m = 3000: 2.8e7).
+    ('model = "pmb"', 'model = "pmb"\nhorizon = 3e3',
+     "materials[0].horizon: 3000 particle spacings is more than 256: a complete family "
+     "would hold about 2.8e+07 half-bonds per particle"),
+    ('model = "pmb"', 'model = "pmb"\nhorizon_length = 1e9',
+     "materials[0].horizon_length: 1e+11 particle spacings is more than 256"),
     ("[[0.5, 0.7], [0.5, 0.6]]", "[[0.5, 1.7], [0.5, 0.6]]",
      "materials[0].precracks[0]: outside the domain (lower [0, 0], upper [1, 1])"),
     ("[[0.5, 0.7], [0.5, 0.6]]", "[[0.5, 0.7, 0.1], [0.5, 0.6, 0.1]]",
@@ -119,15 +127,15 @@ upper = [0.6, 0.6, 0.6]
 
 
 def test_too_many_bonds_are_refused_at_the_scene_level_with_the_number(tmp_path, capsys):
-    """A 300-spacing horizon: 283,656 half-bonds per interior particle (lattice points within
-    300.5 spacings, counted here), 22 B resident each (pd/bonds.py) plus 4 B of search
-    scratch, times 1600 particles (11.0 GiB); `hpcmpm validate` prints that estimate, and
-    `hpcmpm run` refuses it in one line before sampling when it exceeds the memory available
-    (patched to 4 GiB here)."""
-    ii, jj = np.meshgrid(np.arange(-301, 302), np.arange(-301, 302))
-    count = int(np.sum(ii * ii + jj * jj < 300.5 ** 2)) - 1
+    """A 250-spacing horizon (below the limit of 256): 197,156 half-bonds per interior
+    particle (lattice points within 250.5 spacings, counted here), 22 B resident each
+    (pd/bonds.py) plus 4 B of search scratch, times 1600 particles (7.6 GiB); `hpcmpm
+    validate` prints that estimate, and `hpcmpm run` refuses it in one line before sampling
+    when it exceeds the memory available (patched to 4 GiB here)."""
+    ii, jj = np.meshgrid(np.arange(-251, 252), np.arange(-251, 252))
+    count = int(np.sum(ii * ii + jj * jj < 250.5 ** 2)) - 1
     path = tmp_path / "plate.toml"
-    path.write_text(PLATE.replace('model = "pmb"', 'model = "pmb"\nhorizon = 300.0'))
+    path.write_text(PLATE.replace('model = "pmb"', 'model = "pmb"\nhorizon = 250.0'))
     assert cli.main(["validate", str(path)]) == 0
     out = capsys.readouterr().out
     bonds = 1600 * count * (22 + 4) / 2**30

@@ -163,3 +163,15 @@ def test_spb_horizon_reaching_half_a_period_is_a_scene_error():
     assert len(lines) == 1
     assert "materials[0].failure.horizon: the family radius 0.087875 reaches half the period " \
            "0.15 of the periodic axis x" in lines[0]
+
+
+def test_spb_horizon_beyond_the_limit_is_one_line():
+    """A horizon of 1e9 spacings: one line at the key, and no lattice of its size built
+    (the SPB time step summed (2m + 2)^d points with numpy: out of memory)."""
+    with pytest.raises(SceneError) as err:
+        parse_scene(SCENE.format(x0=0.6, x1=0.9, height=0.5).replace(
+            "model = \"spb\"", "model = \"spb\", horizon = 1e9"), "wide.toml")
+    lines = str(err.value).splitlines()
+    assert lines == ["wide.toml: materials[0].failure.horizon: 1e+09 particle spacings is more "
+                     "than 256: a complete family would hold about 3.1e+18 half-bonds per "
+                     "particle"]
