@@ -90,7 +90,9 @@ class Canvas:
         bar_w = max(8, round(0.025 * self.width))
         label_w = round(4.8 * font * DPI / 72)  # room for tick labels and the bar's label (px)
         top = round(2.2 * font * DPI / 72)
-        margin = max(4, round(0.02 * self.width))
+        # From the width, but no more than a wide and low picture has room for (8192 x 64
+        # had a margin of 164 px and a view of negative height).
+        margin = max(4, round(0.02 * min(self.width, 1.5 * self.height)))
         # The view's rectangle in whole pixels, so a raster drawn into it maps 1:1.
         self.view_px = (margin, margin, self.width - 2 * margin - bar_w - label_w,
                         self.height - top - margin)  # left, bottom, width, height

@@ -21,7 +21,7 @@ from ..errors import HpcmpmError
 from .fields import FieldChoice, datasets_needed, field_values, parse_field
 from .layout import colour_scale
 from .movie import write_movie
-from .series import (FrameRef, RenderError, dataset_shapes, finite_range, list_frames,
+from .series import (FrameRef, RenderError, check_fps, dataset_shapes, finite_range, list_frames,
                      read_frame_data, run_geometry, select_frames)
 
 log = logging.getLogger(__name__)
@@ -43,6 +43,7 @@ def render_run(run_dir, field: str | None = None, frames: str | None = None, out
 
     ``out`` defaults to ``RUN_DIR/render``; PNGs are ``render_NNNNNN.png`` (the frame's
     number), the movie ``render.mp4`` (or ``.gif``) when more than one frame is rendered."""
+    check_fps(fps)
     if comm is None:
         from ..parallel import Communicator
 

@@ -33,6 +33,20 @@ LIGHT = np.array([-0.45, 0.6, -0.66])
 COLLIDER_RGB = (0.72, 0.72, 0.72)
 
 
+def _unit(v: np.ndarray, name: str) -> np.ndarray:
+    """v / |v|, scaled by its largest component first: |v|^2 of an up of 1e-200 underflows
+    and that of eye - target of 1e200 overflows (both were reported as an 'up' parallel to
+    the view)."""
+    largest = float(np.max(np.abs(v)))
+    if not math.isfinite(largest):
+        raise RenderError(f"--camera: {name} overflows; give eye and target within the "
+                          f"floating-point range of each other")
+    if largest == 0.0:
+        raise RenderError(f"--camera: {name} is the zero vector")
+    v = v / largest
+    return v / np.linalg.norm(v)
+
+
 @dataclass(frozen=True)
 class Camera:
     eye: np.ndarray
@@ -42,9 +56,9 @@ class Camera:
 
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(right, up, forward) unit vectors of the camera frame."""
-        forward = self.target - self.eye
-        forward = forward / np.linalg.norm(forward)
-        right = np.cross(forward, self.up)
+        with np.errstate(over="ignore"):  # `_unit` reports an overflow in one line
+            forward = _unit(self.target - self.eye, "target - eye")
+        right = np.cross(forward, _unit(self.up, "up"))
         if np.linalg.norm(right) < 1e-12:
             raise RenderError("--camera: 'up' is parallel to the viewing direction")
         right /= np.linalg.norm(right)
@@ -91,7 +105,7 @@ def parse_camera(spec: str | None, default: Camera) -> Camera:
         try:
             if key in ("eye", "target", "up"):
                 vector = np.array([float(s) for s in value.split(",")])
-                if vector.shape != (3,):
+                if vector.shape != (3,) or not np.all(np.isfinite(vector)):
                     raise ValueError
                 changes[key] = vector
             elif key == "fov":
@@ -106,7 +120,7 @@ def parse_camera(spec: str | None, default: Camera) -> Camera:
                               f"{'degrees in 1..150' if key == 'fov' else 'three numbers X,Y,Z'}"
                               ) from None
     camera = replace(default, **changes)
-    if np.linalg.norm(camera.target - camera.eye) == 0.0:
+    if np.array_equal(camera.target, camera.eye):
         raise RenderError(f"--camera {spec!r}: eye and target are the same point")
     camera.basis()
     return camera

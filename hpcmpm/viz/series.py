@@ -197,15 +197,35 @@ def _scene_name(attrs: dict, run_dir: Path) -> str:
     return Path(run_dir).resolve().name
 
 
+# The smallest picture: at its smallest font the layout (layout.Canvas) takes 56 pixels of
+# the width (margins, colour bar, tick labels) and 22 of the height (title, margin), so 96 x
+# 64 leaves a view of 40 x 42. Below about 60 x 26 the view had no pixels and matplotlib
+# raised (the former bound, 16, let a traceback through).
+MIN_SIZE = (96, 64)
+MAX_SIZE = 8192
+# Frames per second of a movie: a GIF frame lasts a whole number of milliseconds (1000 fps
+# at most), and a frame of more than 100 s is no movie.
+FPS_RANGE = (0.01, 1000.0)
+
+
 def parse_size(spec: str) -> tuple[int, int]:
-    """``WxH`` in pixels, each 16..8192."""
+    """``WxH`` in pixels, within MIN_SIZE..MAX_SIZE."""
     match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", spec or "")
     if not match:
         raise RenderError(f"--size {spec!r}: expected WxH in pixels, e.g. 960x720")
     w, h = int(match.group(1)), int(match.group(2))
-    if not (16 <= w <= 8192 and 16 <= h <= 8192):
-        raise RenderError(f"--size {spec!r}: width and height must be 16..8192 pixels")
+    if not (MIN_SIZE[0] <= w <= MAX_SIZE and MIN_SIZE[1] <= h <= MAX_SIZE):
+        raise RenderError(f"--size {spec!r}: width must be {MIN_SIZE[0]}..{MAX_SIZE} and "
+                          f"height {MIN_SIZE[1]}..{MAX_SIZE} pixels")
     return w, h
+
+
+def check_fps(fps: float) -> None:
+    """A movie's frame rate within FPS_RANGE (0, a negative or a NaN rate failed only at
+    the movie, after every frame was drawn)."""
+    if not FPS_RANGE[0] <= fps <= FPS_RANGE[1]:
+        raise RenderError(f"--fps {fps:g}: must be {FPS_RANGE[0]:g}..{FPS_RANGE[1]:g} "
+                          f"frames per second")
 
 
 def finite_range(values: np.ndarray) -> tuple[float, float]:

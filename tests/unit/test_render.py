@@ -234,6 +234,49 @@ def test_frames_range_parsing():
             select_frames(frames, spec)
 
 
+@pytest.mark.parametrize("dim,size", [(2, (96, 64)), (3, (96, 64)), (3, (8192, 64)),
+                                      (2, (96, 8192))])
+def test_the_extreme_sizes_render(tmp_path, dim, size):
+    """The smallest accepted picture (series.MIN_SIZE) and the widest and tallest at its
+    other side have a view to draw in: below 60 x 26, and at 8192 x 64 (a margin grown with
+    the width), the view had no pixels and matplotlib raised."""
+    from hpcmpm.viz.layout import Canvas, colour_scale
+    from hpcmpm.viz.fields import FieldChoice
+
+    x = lattice((0.2, 0.5, 0.2)[:dim], (0.6, 0.9, 0.5)[:dim], SPACING[dim])
+    run = write_known_run(tmp_path / "run", SCENE_2D if dim == 2 else SCENE_3D, x)
+    result = render_run(run, size=size, movie="none", comm=OneRank())
+    assert read_png(result.pngs[0]).shape == (size[1], size[0], 3)
+    view = Canvas(size, colour_scale(FieldChoice("speed"), 0, 1), "").view_px
+    assert view[2] >= 40 and view[3] >= 40, view
+
+
+def test_size_fps_and_camera_out_of_range_are_one_line_errors():
+    from hpcmpm.viz.render3d import Camera, parse_camera
+    from hpcmpm.viz.series import check_fps, parse_size
+
+    assert parse_size("96x64") == (96, 64)
+    for spec in ("95x64", "96x63", "8193x100", "16x16"):
+        with pytest.raises(RenderError, match="width must be 96..8192 and height 64..8192"):
+            parse_size(spec)
+    check_fps(0.01)
+    check_fps(1000.0)
+    for fps in (0.0, -1.0, math.nan, math.inf, 1e-320, 1001.0):
+        with pytest.raises(RenderError, match="must be 0.01..1000 frames per second"):
+            check_fps(fps)
+    default = Camera(np.array([0.0, -3.0, 0.0]), np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    # A direction is a direction at any magnitude (|up|^2 underflows here).
+    tiny = parse_camera("up=0,1e-200,1e-200", default).basis()
+    unit = parse_camera("up=0,1,1", default).basis()
+    np.testing.assert_allclose(tiny, unit, rtol=0, atol=1e-15)
+    for spec, message in [("eye=1e308,0,0;target=-1e308,0,0", "target - eye overflows"),
+                          ("up=0,0,0", "up is the zero vector"),
+                          ("eye=nan,0,0", "eye needs three numbers"),
+                          ("up=0,1,0;eye=0,-3,0", "parallel to the viewing direction")]:
+        with pytest.raises(RenderError, match=message):
+            parse_camera(spec, default)
+
+
 def hpcmpm(capsys, *args) -> tuple[int, str]:
     """The console script's entry point in this process: (exit code, stderr)."""
     from hpcmpm.cli import main
