@@ -19,6 +19,8 @@ SCHEDULERS = ("slurm", "pbs")
 # Seconds before the wall time at which the run is told to checkpoint: enough for one step
 # plus a checkpoint write of a large run.
 SIGNAL_MARGIN = 300
+# ... and at least this many (a tenth of the wall time in between).
+MIN_SIGNAL_MARGIN = 10
 # srun's MPI plugin: PMI-2 gives MPICH (the PyPI wheel too) its ranks; see jobs/slurm.sh.in.
 DEFAULT_SRUN_MPI = "pmi2"
 # `hpcmpm run` options that a requeued job's `hpcmpm restart` must be given again (the rest of
@@ -52,7 +54,14 @@ def parse_walltime(text: str) -> int:
         values = []
     if len(values) != 3 or min(values) < 0 or values[1] > 59 or values[2] > 59:
         raise JobScriptError(f"--time: expected HH:MM:SS, got {text!r}")
-    return values[0] * 3600 + values[1] * 60 + values[2]
+    seconds = values[0] * 3600 + values[1] * 60 + values[2]
+    if seconds <= MIN_SIGNAL_MARGIN:
+        # 0 is no limit to SLURM and none at all to PBS; either way the checkpoint signal,
+        # due MIN_SIGNAL_MARGIN s before the end, would come at or before the start.
+        raise JobScriptError(f"--time {text}: the run is told to checkpoint "
+                             f"{MIN_SIGNAL_MARGIN} s before the wall time; give more than "
+                             f"{MIN_SIGNAL_MARGIN} s")
+    return seconds
 
 
 def render(scheduler: str, scene: str, nodes: int, ranks_per_node: int, walltime: str,
@@ -70,7 +79,7 @@ def render(scheduler: str, scene: str, nodes: int, ranks_per_node: int, walltime
         raise JobScriptError(f"--mpi: expected an srun MPI plugin name such as pmi2, pmix or "
                              f"default, got {srun_mpi!r}")
     seconds = parse_walltime(walltime)
-    margin = min(SIGNAL_MARGIN, max(seconds // 10, 10))
+    margin = min(SIGNAL_MARGIN, max(seconds // 10, MIN_SIGNAL_MARGIN))
     out_dir = default_out_dir(scene, out_dir)
     log = directive_path(scheduler, out_dir)
 

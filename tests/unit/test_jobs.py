@@ -68,6 +68,12 @@ def test_script_starts_fresh_then_resumes_from_newest_checkpoint(tmp_path, sched
 def test_bad_walltime_is_a_clear_error():
     with pytest.raises(JobScriptError, match="HH:MM:SS"):
         render("slurm", "x.toml", 1, 1, "90 minutes")
+    # The checkpoint signal comes at least 10 s before the end: a shorter wall time (or 0,
+    # which SLURM reads as no limit) leaves it no time; 00:00:11 is the shortest.
+    for walltime in ("00:00:00", "00:00:10"):
+        with pytest.raises(JobScriptError, match="give more than 10 s"):
+            render("slurm", "x.toml", 1, 1, walltime)
+    assert "#SBATCH --signal=B:USR1@10\n" in render("slurm", "x.toml", 1, 1, "00:00:11")
 
 
 @pytest.mark.parametrize("rendered", [True, False])
