@@ -279,13 +279,10 @@ class Checker:
         value = self.vector(table, key, path, dim)
         if value is None:
             return None
-        largest = max(abs(v) for v in value)
-        if largest == 0.0:
+        unit = unit_vector(value)
+        if unit is None:
             self.problem(_join(path, key), "must be a nonzero vector")
-            return None
-        scaled = [v / largest for v in value]
-        length = math.sqrt(sum(v * v for v in scaled))
-        return tuple(v / length for v in scaled)
+        return unit
 
     def angular(self, table: dict, key: str, path: str, dim: int):
         """2D: a scalar (about z); 3D: a 3-vector."""
@@ -294,6 +291,18 @@ class Checker:
         if dim == 2:
             return self.number(table, key, path)
         return self.vector(table, key, path, 3)
+
+
+def unit_vector(values) -> tuple[float, ...] | None:
+    """The unit vector along finite ``values``, None for the zero vector. Scaled by the
+    largest component first, so any representable direction has one: |v|^2 underflows for
+    [1e-170, 0, 0] and overflows for [1e200, 0, 0]."""
+    largest = max(abs(float(v)) for v in values)
+    if largest == 0.0:
+        return None
+    scaled = [float(v) / largest for v in values]
+    length = math.sqrt(sum(v * v for v in scaled))
+    return tuple(v / length for v in scaled)
 
 
 class CommandLineChecker(Checker):

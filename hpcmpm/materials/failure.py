@@ -123,10 +123,8 @@ def failure_scene_problems(materials, transfer: str, integrator: str, periods=()
                              "'tensile_energy' divides by Young's modulus: needs E > 0"))
     specs = [materials[g].failure for g in groups]
     names = [materials[g].spec.name for g in groups]
-    too_wide = [(f"materials[{g}].failure.horizon", horizon_problem(materials[g].dim,
-                                                                    spec["horizon"]))
-                for g, spec in zip(groups, specs)]
-    too_wide = [problem for problem in too_wide if problem[1]]
+    too_wide = [(f"materials[{g}].failure.horizon", line) for g, spec in zip(groups, specs)
+                if (line := horizon_problem(materials[g].dim, spec["horizon"]))]
     if too_wide:  # the checks below and the time step would build lattices of its size
         return problems + too_wide
     for key in SHARED_KEYS:

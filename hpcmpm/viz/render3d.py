@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
+from ..scene import unit_vector
 from .layout import Canvas, ColourScale, frame_title
 from .series import RenderError, RunGeometry
 
@@ -34,17 +35,15 @@ COLLIDER_RGB = (0.72, 0.72, 0.72)
 
 
 def _unit(v: np.ndarray, name: str) -> np.ndarray:
-    """v / |v|, scaled by its largest component first: |v|^2 of an up of 1e-200 underflows
-    and that of eye - target of 1e200 overflows (both were reported as an 'up' parallel to
-    the view)."""
-    largest = float(np.max(np.abs(v)))
-    if not math.isfinite(largest):
+    """v / |v| for any representable v (`unit_vector`: an up of 1e-200 and an eye - target
+    of 1e200 were reported as an 'up' parallel to the view)."""
+    if not np.all(np.isfinite(v)):
         raise RenderError(f"--camera: {name} overflows; give eye and target within the "
                           f"floating-point range of each other")
-    if largest == 0.0:
+    unit = unit_vector(v)
+    if unit is None:
         raise RenderError(f"--camera: {name} is the zero vector")
-    v = v / largest
-    return v / np.linalg.norm(v)
+    return np.array(unit)
 
 
 @dataclass(frozen=True)
