@@ -380,11 +380,22 @@ def simulate(scene, end_time: float | None = None, observer=None, comm=None) -> 
     return sim
 
 
+def check_end_time_frames(every: float, end_time: float | None) -> None:
+    """``--end-time`` against the scene's output.every (`frame_count_problem`; the scene's
+    own end time was checked with the scene): the same `SceneError` on every rank."""
+    from .scene import frame_count_problem
+
+    too_many = None if end_time is None else frame_count_problem(every, end_time)
+    if too_many:
+        raise SceneError(f"--end-time: output.every = {too_many}")
+
+
 def run_command(args, signal_flag: SignalFlag | None = None) -> int:
     check_options(args)
     comm = Communicator()
     check_launch(comm)
     scene = load_scene_on_root(comm, args.scene, getattr(args, "set", None) or [])
+    check_end_time_frames(scene.output.every, args.end_time)
     if getattr(args, "dry_run", False):
         from .startup import dry_run
 
@@ -481,6 +492,7 @@ def restart_command(args, signal_flag: SignalFlag | None = None) -> int:
     check_launch(comm)
     ckpt = checkpoint_to_restart(Path(args.checkpoint), comm)
     sim, meta, end_time = restore_simulation(str(ckpt), comm, args.end_time)
+    check_end_time_frames(sim.scene.output.every, args.end_time)
     from .io.checkpoint import reached_end
 
     if reached_end(sim.time, end_time):

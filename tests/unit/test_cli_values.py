@@ -37,6 +37,11 @@ BAD_RUN_OPTIONS = {
     "checkpoint_wall_four_fields": (["--checkpoint-wall", "1:00:00:00"],
                                     "--checkpoint-wall: expected a positive HH:MM:SS, got "
                                     "'1:00:00:00'"),
+    # A frame every 0.1 to t = 1e5: a million files, and steps shortened to land on each.
+    "end_time_too_many_frames": (["--set", "output.every=0.1", "--end-time", "1e5"],
+                                 "--end-time: output.every = 0.1 would write 1e+06 frames to "
+                                 "t = 100000, a file each (at most 100000): raise "
+                                 "output.every"),
     # A negative field was added in (01:-30:00 was half an hour).
     "checkpoint_wall_negative_field": (["--checkpoint-wall", "01:-30:00"],
                                        "--checkpoint-wall: expected a positive HH:MM:SS, got "
@@ -107,7 +112,9 @@ def test_restart_with_nothing_left_says_so_and_writes_nothing(short_run, capsys)
         "hpcmpm: error: --end-time: must be later than the checkpoint's time t=0.2 "
         "(ckpt_000000020.h5), got 0.1"]
     for bad, line in (("-1", "--end-time: must be > 0.0, got -1.0"),
-                      ("nan", "--end-time: must be finite, got nan")):
+                      ("nan", "--end-time: must be finite, got nan"),
+                      ("1e5", "--end-time: output.every = 0.1 would write 1e+06 frames to t = "
+                              "100000, a file each (at most 100000): raise output.every")):
         assert cli.main(["restart", str(final), "--end-time", bad, "--quiet"]) == 2
         assert error_lines(capsys) == [f"hpcmpm: error: {line}"]
     assert {p.name: p.stat().st_mtime_ns for p in short_run.iterdir()} == before

@@ -240,6 +240,10 @@ CASES = {
     # A size may not be infinite (its bounds were NaN: "body lies outside the domain").
     "infinite_radius": (GOOD.replace("radius = 0.2", "radius = inf", 1),
                         "bodies[0].radius: must be finite, got inf"),
+    # A frame every 1e-5 to t = 3: 3e5 files, and the steps shortened to land on each.
+    "too_many_frames": (GOOD.replace("every = 0.1", "every = 1e-5"),
+                        "output.every: 1e-05 would write 3e+05 frames to t = 3, a file each "
+                        "(at most 100000): raise output.every"),
     # The line of "dim = 2" in the scene file (its header may grow), 1-based as TOML counts.
     "toml_syntax": (GOOD.replace("dim = 2", "dim = = 2"),
                     "TOML syntax error: Invalid value (at line "
