@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import EXIT_CHECKPOINTED_ON_SIGNAL, HpcmpmError, OutputExistsError, SceneError
+from .errors import (EXIT_CHECKPOINTED_ON_SIGNAL, HpcmpmError, InstabilityError,
+                     OutputExistsError, SceneError)
 from .parallel import Communicator, check_launch, make_domain
 from .progress import Progress
 from .signals import SignalFlag
@@ -156,6 +157,12 @@ class Runner:
                         f"{signal.Signals(raised[0]).name} received: checkpoint written at "
                         f"step {sim.step_index}, t={sim.time:.6g} in {opts.out_dir}; continue "
                         f"with `hpcmpm restart {shlex.quote(str(self.latest_checkpoint_path))}`")
+                if not sim.time + dt > sim.time:
+                    raise InstabilityError(
+                        f"the time step no longer advances the run at step {sim.step_index}, "
+                        f"t={sim.time:.6g}: dt = {dt:.3g}. Hint: a wave speed beyond the "
+                        f"floating-point range (check the materials' moduli and densities), "
+                        f"or simulation.end_time too large for the step.")
                 target = self.next_frame_time(sim.time)
                 clipped = sim.time + dt >= target * (1 - 1e-12)
                 if clipped and abs(target - sim.time - dt) > 1e-9 * dt:

@@ -643,8 +643,8 @@ class Simulation:
         cause = f" ({'; '.join(details[:MAX_REPORTED])})" if details else ""
         raise InstabilityError(
             f"numerical instability at step {self.step_index}, t={self.time:.6g}: "
-            f"{total_bad} particle(s) with a non-finite value, det F <= 0 or a position "
-            f"a domain size beyond the domain, ids {ids}{more}, "
+            f"{total_bad} particle(s) with a non-finite value or speed, det F <= 0 or a "
+            f"position a domain size beyond the domain, ids {ids}{more}, "
             f"material {', '.join(repr(n) for n in names)}{cause}. "
             f"Hint: lower simulation.cfl (now {self.scene.cfl}) or a fixed simulation.dt, "
             f"or refine simulation.dx (now {self.dx}).")

@@ -15,8 +15,8 @@ from .deformation import volume_ratio
 def scan_health(x, v, F, bad, max_report, lo, hi):
     """Largest particle speed and the indices of broken particles.
 
-    A particle is broken when x, v or F holds a non-finite value, det F <= 0 (an inverted
-    or collapsed element: the stress models are undefined there) or x lies outside
+    A particle is broken when x, v or F holds a non-finite value, |v|^2 overflows, det F <= 0
+    (an inverted or collapsed element: the stress models are undefined there) or x lies outside
     [lo, hi] (far beyond the domain: a blown-up state, which would next ask for a grid block
     reaching it). F may be the (n,) volume ratio J of a scene of volumetric materials
     (`hpcmpm.kernels.deformation`). Writes up to ``max_report`` indices into ``bad``;
@@ -33,6 +33,10 @@ def scan_health(x, v, F, bad, max_report, lo, hi):
                 ok = False
         J = volume_ratio(F, p)
         if not (math.isfinite(J) and J > 0.0):
+            ok = False
+        if not math.isfinite(s):
+            # |v|^2 overflows (|v| > 1.3e154): the speed would be inf and the time step 0,
+            # a run that loops without advancing (a fuzzed velocity of 1e299 did).
             ok = False
         if ok:
             if s > vmax2:

@@ -62,3 +62,32 @@ def test_simulation_allows_a_domain_size_around_the_domain():
     extent = max(np.subtract(scene.domain_hi, scene.domain_lo))
     np.testing.assert_array_equal(lo, np.subtract(scene.domain_lo, extent))
     np.testing.assert_array_equal(hi, np.add(scene.domain_hi, extent))
+
+
+def test_a_speed_whose_square_overflows_is_broken():
+    """`scan_health`: v = (0.1, 1e299) is finite component by component, but |v|^2 is inf:
+    the speed was inf, the time step 0, and the run looped at t = 0 without end (a fuzzed
+    scene). The largest speed of the others is still reported."""
+    from hpcmpm.kernels.particles import scan_health
+
+    lo, hi = np.array([-1.0, -1.0]), np.array([2.0, 2.0])
+    x = np.full((3, 2), 0.5)
+    v = np.array([[0.1, 1e299], [3.0, 4.0], [1e154, 0.0]])  # 1e154^2 = 1e308: finite
+    F = np.tile(np.eye(2), (3, 1, 1))
+    bad = np.zeros(4, dtype=np.int64)
+    speed, nbad = scan_health(x, v, F, bad, 4, lo, hi)
+    assert nbad == 1 and bad[0] == 0
+    assert speed == 1e154
+
+
+def test_a_time_step_that_does_not_advance_the_run_stops_it(tmp_path, capsys):
+    """A wave speed beyond the float range (E = 1e300, density = 1e-300: c = inf) gave dt =
+    0 and a run that stepped forever at t = 0; now one line, exit code 3."""
+    from hpcmpm import cli
+
+    out = tmp_path / "out"
+    assert cli.main(["run", "inputs/bar_2d.toml", "--out", str(out), "--quiet",
+                     "--set", "materials.0.E=1e300", "--set", "materials.0.density=1e-300"]) == 3
+    lines = [l for l in capsys.readouterr().err.splitlines() if l.startswith("hpcmpm:")]
+    assert len(lines) == 1 and lines[0].startswith(
+        "hpcmpm: error: the time step no longer advances the run at step 0, t=0: dt = 0.")
