@@ -126,3 +126,14 @@ def test_study_stability_smoke(tmp_path):
         values = list(numbers(result[key]))
         assert values and all(math.isfinite(v) for v in values)
     assert (tmp_path / "study_stability.md").read_text().startswith("| scheme")
+
+
+def test_fuzz_scenes_smoke():
+    """scripts/fuzz_scenes.py: a few hundred validations and two runs of mutated scenes give
+    verdicts and no failure (the campaigns of stop 38 ran 280 000 and 592)."""
+    out = run_script("fuzz_scenes.py", "validate", "--count", "300", "--seed", "4",
+                     "--depth", "2").stdout
+    assert out.startswith("validate: 300 verdicts") and "0 failure(s)" in out, out
+    out = run_script("fuzz_scenes.py", "run", "--count", "2", "--seed", "5", "--scenes",
+                     "bar_2d", "disks_2d").stdout
+    assert out.startswith("run: 2 verdicts") and "0 failure(s)" in out, out
