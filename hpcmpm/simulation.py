@@ -435,7 +435,12 @@ class Simulation:
                 with t("stress"):
                     fields = {name: a[start:stop] for name, a in arrays.items()}
                     fields["tau"] = tau
-                    material.update_stress(fields, dt)
+                    try:
+                        material.update_stress(fields, dt)
+                    except ZeroDivisionError:
+                        self.break_undefined_rows(material, fields, start,
+                                                  lambda one: material.update_stress(one, dt),
+                                                  "its stress")
                 for hook in self._stress_hooks:
                     with t("spb_energy"):
                         hook.stress_chunk(self, g, start, stop, tau, dt)
@@ -573,7 +578,32 @@ class Simulation:
             for g in self._state_groups:
                 start, stop = self.group_slices[g]
                 if stop > start:
-                    self.materials[g].update_state(self.material_fields(g), dt)
+                    material, fields = self.materials[g], self.material_fields(g)
+                    try:
+                        material.update_state(fields, dt)
+                    except ZeroDivisionError:
+                        self.break_undefined_rows(material, fields, start,
+                                                  lambda one: material.update_state(one, dt),
+                                                  "its state update")
+
+    def break_undefined_rows(self, material, fields, start: int, update, what: str) -> None:
+        """A material kernel divided by zero (a state already blown up: a singular or
+        non-finite F; a fuzzed gravity of -1e308 gave snow's return map a ZeroDivisionError
+        traceback on one rank). Each row is evaluated alone, on a copy, by ``update``; those
+        that divide by zero get a non-finite velocity, so the next health check, on every rank
+        alike, stops the run with their ids, step and time, and the material's failure note
+        names the cause. Runs once, as the run stops (SPB's PD stress does the same)."""
+        bad = np.zeros(len(fields["x"]), dtype=bool)
+        for i in range(len(bad)):
+            try:
+                update({name: a[i:i + 1].copy() for name, a in fields.items()})
+            except ZeroDivisionError:
+                bad[i] = True
+        self.particles["v"][start:start + len(bad)][bad] = np.nan
+        if "tau" in fields:
+            fields["tau"][bad] = 0.0
+        material.failures.append(f"{what} divides by zero: a singular or non-finite "
+                                 f"deformation gradient")
 
     def after_g2p(self, dt: float) -> None:
         for extension in self._after_g2p:
@@ -670,7 +700,8 @@ class Simulation:
                         if hasattr(e, "strain_energy"))
         g = self.gravity[:self.dim]
         if np.any(g != 0.0):
-            local[9] = -float(p["mass"] @ (p["x"] @ g))
+            with np.errstate(over="ignore", invalid="ignore"):  # a blown-up state's report
+                local[9] = -float(p["mass"] @ (p["x"] @ g))
         total = self.domain.sum(local)
         out = {
             "mass": total[0],

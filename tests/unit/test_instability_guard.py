@@ -91,3 +91,33 @@ def test_a_time_step_that_does_not_advance_the_run_stops_it(tmp_path, capsys):
     lines = [l for l in capsys.readouterr().err.splitlines() if l.startswith("hpcmpm:")]
     assert len(lines) == 1 and lines[0].startswith(
         "hpcmpm: error: the time step no longer advances the run at step 0, t=0: dt = 0.")
+
+
+def test_a_material_update_that_divides_by_zero_stops_at_the_health_check():
+    """Snow's return map divides by zero on F = diag(1e308, 1e308, 1e-308) (a fuzzed gravity
+    of -1e308 got there: a ZeroDivisionError traceback, on one rank of a parallel run). That
+    particle alone gets a non-finite velocity, the material a note, and the health check (on
+    every rank alike) stops the run with its id."""
+    import pytest
+
+    from hpcmpm.errors import InstabilityError
+    from hpcmpm.runner import initial_particles, make_domain
+    from hpcmpm.scene import load_scene
+    from hpcmpm.simulation import Simulation
+
+    scene = load_scene("inputs/snow_block_3d.toml", ["simulation.particles_per_cell=1"])
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    sim.ensure_grouped()
+    p = sim.particles
+    start, _ = sim.group_slices[0]
+    row = start + 5
+    p["F"][row] = np.diag([1e308, 1e308, 1e-308])
+    sim.update_states(1e-4)
+    assert np.flatnonzero(~np.isfinite(p["v"][:, 0])).tolist() == [row]
+    assert sim.materials[0].failures == [
+        "its state update divides by zero: a singular or non-finite deformation gradient"]
+    with pytest.raises(InstabilityError) as info:
+        sim.check_health()
+    message = str(info.value)
+    assert f"ids {int(p['id'][row])}," in message and "divides by zero" in message
