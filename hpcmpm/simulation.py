@@ -435,12 +435,9 @@ class Simulation:
                 with t("stress"):
                     fields = {name: a[start:stop] for name, a in arrays.items()}
                     fields["tau"] = tau
-                    try:
-                        material.update_stress(fields, dt)
-                    except ZeroDivisionError:
-                        self.break_undefined_rows(material, fields, start,
-                                                  lambda one: material.update_stress(one, dt),
-                                                  "its stress")
+                    self.update_guarded(material, fields, start,
+                                        lambda rows: material.update_stress(rows, dt),
+                                        "its stress")
                 for hook in self._stress_hooks:
                     with t("spb_energy"):
                         hook.stress_chunk(self, g, start, stop, tau, dt)
@@ -578,21 +575,24 @@ class Simulation:
             for g in self._state_groups:
                 start, stop = self.group_slices[g]
                 if stop > start:
-                    material, fields = self.materials[g], self.material_fields(g)
-                    try:
-                        material.update_state(fields, dt)
-                    except ZeroDivisionError:
-                        self.break_undefined_rows(material, fields, start,
-                                                  lambda one: material.update_state(one, dt),
-                                                  "its state update")
+                    material = self.materials[g]
+                    self.update_guarded(material, self.material_fields(g), start,
+                                        lambda rows: material.update_state(rows, dt),
+                                        "its state update")
 
-    def break_undefined_rows(self, material, fields, start: int, update, what: str) -> None:
-        """A material kernel divided by zero (a state already blown up: a singular or
-        non-finite F; a fuzzed gravity of -1e308 gave snow's return map a ZeroDivisionError
-        traceback on one rank). Each row is evaluated alone, on a copy, by ``update``; those
-        that divide by zero get a non-finite velocity, so the next health check, on every rank
-        alike, stops the run with their ids, step and time, and the material's failure note
-        names the cause. Runs once, as the run stops (SPB's PD stress does the same)."""
+    def update_guarded(self, material, fields, start: int, update, what: str) -> None:
+        """``update(fields)``, a material kernel over rows ``start...`` of the particles.
+        Where it divides by zero (a state already blown up: a singular or non-finite F; a
+        fuzzed gravity of -1e308 gave snow's return map a ZeroDivisionError traceback on one
+        rank), each row is evaluated alone, on a copy; those that divide by zero get a
+        non-finite velocity, so the next health check, on every rank alike, stops the run
+        with their ids, step and time, and the material's failure note names the cause. That
+        runs once, as the run stops (SPB's PD stress does the same)."""
+        try:
+            update(fields)
+            return
+        except ZeroDivisionError:
+            pass
         bad = np.zeros(len(fields["x"]), dtype=bool)
         for i in range(len(bad)):
             try:
