@@ -228,6 +228,7 @@ class Runner:
         from .io.checkpoint import write_checkpoint
 
         sim, domain = self.sim, self.domain
+        sim.assert_healthy()  # never a checkpoint of a blown-up state (a restart takes it)
         meta = {
             "step": sim.step_index, "time": sim.time, "frame_index": self.frame_index,
             "last_dt": self.last_dt, "dt_warned": self.dt_warned,

@@ -1,6 +1,7 @@
 """A blow-up stops the run with step, time, particle ids, material and a hint (exit code 3);
 the frames already written stay readable and hold no NaN."""
 
+import re
 import sys
 from pathlib import Path
 
@@ -15,7 +16,8 @@ def test_too_large_fixed_dt_stops_with_a_clear_message(tmp_path):
     # 50x the CFL bound of this scene: the explicit update is violently unstable.
     proc = run_in_group(
         [str(exe), "run", "inputs/disks_2d.toml", "--out", str(out), "--quiet",
-         "--set", "simulation.dt=0.3", "--set", "output.every=0.6", "--end-time", "30"],
+         "--set", "simulation.dt=0.3", "--set", "output.every=0.6", "--end-time", "30",
+         "--checkpoint-every", "1"],
         timeout=120)
     assert proc.returncode == 3, proc.stderr
     assert "Traceback" not in proc.stderr
@@ -32,6 +34,11 @@ def test_too_large_fixed_dt_stops_with_a_clear_message(tmp_path):
             for name in ("x", "v", "F"):
                 assert np.all(np.isfinite(f[f"particles/{name}"][...])), frame
     assert not list(out.glob("*.tmp"))
+    # A checkpoint every step: none of the step that blew up (it was written, and a restart,
+    # as a requeued job does from the newest, failed on it at once).
+    broken = int(re.search(r"instability at step (\d+)", message[0]).group(1))
+    steps = [int(p.stem.split("_")[1]) for p in out.glob("ckpt_*.h5")]
+    assert steps and max(steps) == broken - 1, (steps, broken)
 
 
 def test_a_particle_far_outside_the_domain_is_broken():
