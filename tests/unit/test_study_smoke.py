@@ -130,7 +130,7 @@ def test_study_stability_smoke(tmp_path):
 
 def test_fuzz_scenes_smoke():
     """scripts/fuzz_scenes.py: a few hundred validations and two runs of mutated scenes give
-    verdicts and no failure (the campaigns of stop 38 ran 280 000 and 592)."""
+    verdicts and no failure (the campaigns of stop 38 ran 280 000 and 2 113)."""
     out = run_script("fuzz_scenes.py", "validate", "--count", "300", "--seed", "4",
                      "--depth", "2").stdout
     assert out.startswith("validate: 300 verdicts") and "0 failure(s)" in out, out
