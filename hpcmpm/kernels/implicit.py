@@ -553,6 +553,23 @@ def inverse_diagonal(material, mass, free, out):
 
 
 @njit(cache=True)
+def stiffness_ratio(material, mass, free):
+    """max over the unknowns of diag(H)_ia / m_i = (m_i + |material_ia|) / m_i: how far the
+    stiffest node's diagonal stands above its inertia (1 for a body without stiffness; about
+    (c dt / dx)^2 for a wave speed c). 1.0 when there are no unknowns."""
+    d = material.shape[1]
+    ratio = 1.0
+    for n in range(material.shape[0]):
+        if free[n] == 0.0:
+            continue
+        for a in range(d):
+            r = (mass[n] + abs(material[n, a])) / mass[n]
+            if r > ratio:
+                ratio = r
+    return ratio
+
+
+@njit(cache=True)
 def owned_dot(a, b, mass, power, lo, hi):
     """sum over the nodes of the index box [lo, hi) that have mass of m_i^power a_i . b_i
     (power 0, 1 or 2). a, b (n0, n1, n2, c) and mass (n0, n1, n2): a block viewed as 3D

@@ -604,6 +604,19 @@ class Domain(Communicator):
                           for (a, b), w in zip(pairs, weights)])
         return self._reduce_sum(local)
 
+    def weighted_mean(self, grid, name: str, power: int) -> np.ndarray:
+        """sum_i m_i^power a_i / sum_i m_i^power (power 1 or 2) over the owned nodes of all
+        ranks, for the grid field ``name`` (zeros when no node has mass); one allreduce of
+        c + 1 doubles."""
+        s = self.owned_slices(grid)
+        weight = grid["mass"][s] ** int(power)
+        a = grid[name][s]
+        a = a.reshape(weight.shape + (-1,))
+        local = np.append((weight[..., None] * a).reshape(-1, a.shape[-1]).sum(axis=0),
+                          weight.sum())
+        total = self._reduce_sum(local)
+        return total[:-1] / total[-1] if total[-1] > 0.0 else np.zeros(a.shape[-1])
+
     # -- failure ------------------------------------------------------------------------------
     def install_abort_hook(self) -> None:
         """Make an uncaught exception on any rank abort all ranks (after printing it), instead

@@ -61,6 +61,13 @@ def check_sum_then_fill_equals_one_process(dim):
     # No contribution lost: the owned parts of all blocks add up to the whole reference grid.
     assert domain.dot(grid, "mass", "mass") == pytest.approx(ref_mm, rel=1e-12)
     assert domain.dot(grid, "momentum", "momentum") == pytest.approx(ref_pp, rel=1e-12)
+    # The m^2-weighted mean (the semi-implicit solve's uniform translation) over all ranks'
+    # owned nodes: each node once, like the dot products.
+    _, full_m, full_mom = reference_grid(values, domain)
+    w = (full_m * full_m)[..., None]
+    expected = (w * full_mom).reshape(-1, dim).sum(axis=0) / w.sum()
+    np.testing.assert_allclose(domain.weighted_mean(grid, "momentum", 2), expected,
+                               rtol=1e-12, atol=1e-13 * np.abs(expected).max())
 
     # Poison every ghost node, then let the owners refill what this rank's particles touch.
     grid["mass"][~owned] = np.nan
