@@ -142,6 +142,7 @@ class Runner:
                     log.info("%s", line)
         last_ckpt_wall = time.monotonic()
         if not self.first_frame_written:
+            sim.assert_healthy()  # a scene whose initial state is broken writes no frame
             self.write_frame()
             self.first_frame_written = True
         with nullcontext(self.signal_flag) if self.signal_flag else SignalFlag() as flag:

@@ -690,13 +690,21 @@ class Simulation:
         names = sorted({name for _, name in reports})
         more = f" (and {total_bad - len(reports[:MAX_REPORTED])} more)" if total_bad > MAX_REPORTED else ""
         cause = f" ({'; '.join(details[:MAX_REPORTED])})" if details else ""
+        if self.step_index == 0:
+            # Nothing has been integrated yet: the scene's own values are out of range (a
+            # speed of 1e299 m/s, whose square overflows; an axial-mode length of 1e-310,
+            # whose sine is NaN), and a smaller time step would not help.
+            hint = ("Hint: this is the initial state, before the first step: check the "
+                    "velocity, velocity_field and material values of the bodies of these "
+                    "materials (a speed whose square overflows counts as non-finite).")
+        else:
+            hint = (f"Hint: lower simulation.cfl (now {self.scene.cfl}) or a fixed "
+                    f"simulation.dt, or refine simulation.dx (now {self.dx}).")
         raise InstabilityError(
             f"numerical instability at step {self.step_index}, t={self.time:.6g}: "
             f"{total_bad} particle(s) with a non-finite value or speed, det F <= 0 or a "
             f"position a domain size beyond the domain, ids {ids}{more}, "
-            f"material {', '.join(repr(n) for n in names)}{cause}. "
-            f"Hint: lower simulation.cfl (now {self.scene.cfl}) or a fixed simulation.dt, "
-            f"or refine simulation.dx (now {self.dx}).")
+            f"material {', '.join(repr(n) for n in names)}{cause}. {hint}")
 
     # -- diagnostics -----------------------------------------------------------------------
     def diagnostics(self) -> dict[str, float]:

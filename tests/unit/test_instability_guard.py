@@ -41,6 +41,28 @@ def test_too_large_fixed_dt_stops_with_a_clear_message(tmp_path):
     assert steps and max(steps) == broken - 1, (steps, broken)
 
 
+def test_an_initial_state_out_of_range_is_named_as_the_scene_s(tmp_path):
+    """A body speed of 1e299 (its square overflows) and an axial mode of length 1e-310 (its
+    sine is NaN) validate, and the first health check stops them before any step. The hint
+    pointed at simulation.cfl, which cannot help there; it now names the initial state. The
+    axial mode also printed two RuntimeWarnings (overflow in divide, invalid value in sin)
+    before the line."""
+    exe = Path(sys.executable).with_name("hpcmpm")
+    for scene, setting, material in (
+            ("inputs/disks_2d.toml", "bodies.0.velocity=[1e299, 0.0]", "'rubber'"),
+            ("inputs/bar_2d.toml", "bodies.0.velocity_field.length=1e-310", "'bar'")):
+        out = tmp_path / Path(scene).stem
+        proc = run_in_group([str(exe), "run", scene, "--out", str(out), "--quiet", "--set",
+                             setting], timeout=120)
+        assert proc.returncode == 3, proc.stderr
+        assert proc.stderr.startswith("hpcmpm: error: numerical instability at step 0, t=0:")
+        assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr  # no warnings
+        assert f"material {material}" in proc.stderr
+        assert "this is the initial state, before the first step" in proc.stderr
+        assert "simulation.cfl" not in proc.stderr
+        assert not list(out.glob("frame_*.h5"))  # the broken state is not written
+
+
 def test_a_particle_far_outside_the_domain_is_broken():
     """`scan_health`: a finite particle more than the domain's size outside it is a blown-up
     state (its grid block would be enormous: a 374 GiB allocation failed with a MemoryError
