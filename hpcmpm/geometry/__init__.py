@@ -267,9 +267,10 @@ def overlap_warning(scene: Scene, overlaps: list[tuple[int, int, int]]) -> str |
 
 
 def estimate_count(scene: Scene) -> tuple[int, bool]:
-    """Particle count from the bodies' shapes alone, without testing any point: exact for
-    boxes, volume / spacing^dim for spheres and cylinders, the bounding lattice for meshes.
-    Returns (count, exact)."""
+    """Particle count from the bodies' shapes, without testing every point: exact for boxes,
+    volume / spacing^dim for spheres and cylinders, and for meshes the bounding lattice times
+    the fraction of a sub-lattice of it inside (`mesh_inside_fraction`; exact where that
+    sub-lattice is the lattice). Returns (count, exact)."""
     counts, exact = estimate_body_counts(scene)
     return int(round(sum(counts))), exact
 
@@ -289,10 +290,33 @@ def estimate_body_counts(scene: Scene) -> tuple[list[float], bool]:
         elif body.shape == "cylinder":
             out.append(min(np.pi * p["radius"] ** 2 * p["length"] / np.float64(spacing) ** 3, lat.size))
             exact = False
+        elif body.shape == "mesh":
+            fraction, sampled_all = mesh_inside_fraction(body, scene, lat)
+            out.append(fraction * lat.size)
+            exact = exact and sampled_all
         else:
             out.append(float(lat.size))
-            exact = exact and body.shape == "box"
     return out, exact
+
+
+# A mesh body's count estimate tests at most about this many points of its lattice: under a
+# second for the shipped meshes (measured: 0.2 s for the watermelon's two surface meshes).
+MESH_SAMPLE_POINTS = 100_000
+
+
+def mesh_inside_fraction(body, scene: Scene, lat: BodyLattice) -> tuple[float, bool]:
+    """The fraction of a mesh body's lattice points inside it, from every k-th point along
+    each axis (k the smallest that keeps the sample within `MESH_SAMPLE_POINTS`), and whether
+    that was every point (k = 1). A mesh fills its bounding box anywhere from nearly all to a
+    small part of it, so its bounding lattice alone can overstate the count many times (a
+    fuzzed particles_per_cell of 1000 on watermelon_3d: 3.4e12 lattice points); the sample's
+    error is its boundary layer, about 1 / k^(d-1) of the surface's points."""
+    if lat.size == 0:
+        return 0.0, True
+    k = max(1, math.ceil((lat.size / MESH_SAMPLE_POINTS) ** (1.0 / scene.dim)))
+    sample = BodyLattice([a[min(k // 2, len(a) - 1)::k] for a in lat.axes], solid=False)
+    x = sample.points(0, sample.size)
+    return float(np.count_nonzero(inside(body, x, scene.dim))) / sample.size, k == 1
 
 
 def share_bounds(total: int, rank: int, size: int) -> tuple[int, int]:

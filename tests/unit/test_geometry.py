@@ -1,15 +1,16 @@
 """Body samplers: lattice placement, counts and volumes, mesh inside tests, jitter, velocities."""
 
 import math
+from pathlib import Path
 
 import meshio
 import numpy as np
 import pytest
 
 from hpcmpm.errors import SceneError
-from hpcmpm.geometry import (count_overlaps, count_scene, estimate_count, overlap_warning,
-                             sample_body, sample_scene, sample_share)
-from hpcmpm.scene import parse_scene
+from hpcmpm.geometry import (MESH_SAMPLE_POINTS, count_overlaps, count_scene, estimate_count,
+                             overlap_warning, sample_body, sample_scene, sample_share)
+from hpcmpm.scene import load_scene, parse_scene
 
 CUBE_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=float)
 # Faces as outward-oriented quads, each split along a diagonal (lattice points lie on those
@@ -325,6 +326,40 @@ def test_shape_estimate_of_3d_bodies_is_within_the_boundary_layer_of_the_count(b
     area = 4 * math.pi * 0.25 ** 2 if "sphere" in body else \
         2 * math.pi * 0.2 * 0.5 + 2 * math.pi * 0.2 ** 2
     assert abs(guess - count_scene(scene).total) <= area / (2 * h * h)
+
+
+@pytest.mark.parametrize("scene_path", ["inputs/watermelon_3d.toml", "inputs/taylor_cu_3d.toml"])
+def test_mesh_estimate_is_within_the_boundary_layers_of_its_sample(scene_path):
+    """A mesh body's estimate (`mesh_inside_fraction`: every k-th lattice point along each
+    axis) and its exact count both approximate volume / h^3. A lattice point is counted
+    differently from the continuous volume only within half its diagonal of the surface, so
+    the two differ by at most area sqrt(3) (k + 1) h / 2 / h^3 points (the boundary layers of
+    the sample, spacing k h, and of the lattice, spacing h). The bounding lattice alone, the
+    estimate before, misses that bound for every mesh here (the watermelon rind by 5x, its
+    flesh by 6x, the Taylor bar by 1.04x). Measured errors: 2 to 4 % of the count."""
+    from hpcmpm.geometry import body_lattice, estimate_body_counts
+    from hpcmpm.geometry.mesh import load_mesh
+
+    scene = load_scene(scene_path, ["simulation.particles_per_cell=12"])
+    h = scene.dx / 12
+    guesses, exact = estimate_body_counts(scene)
+    counts = count_scene(scene)
+    assert not exact
+    meshes = [b for b, body in enumerate(scene.bodies) if body.shape == "mesh"]
+    assert meshes
+    for b in meshes:
+        body = scene.bodies[b]
+        lat = body_lattice(body, scene)
+        k = math.ceil((lat.size / MESH_SAMPLE_POINTS) ** (1 / 3))
+        assert k > 1  # a sample, not the lattice
+        points, (_, tri) = load_mesh(Path(body.params["file"]), 3)
+        corners = points[tri] * body.params["scale"]
+        area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
+                                             corners[:, 2] - corners[:, 0]), axis=1).sum()
+        bound = area * math.sqrt(3) * (k + 1) * h / 2 / h ** 3
+        count = counts.body_count(b)
+        assert abs(guesses[b] - count) <= bound, (b, guesses[b], count, bound)
+        assert lat.size - count > bound  # the test tells the sample from the bounding box
 
 
 def overlaps_of(bodies, dim=2, **kw):

@@ -82,6 +82,21 @@ def test_validate_and_run_report_a_scene_too_big_in_one_line():
     assert len(errors) == 1 and "2,744,000,000 particles" in errors[0], proc.stderr
 
 
+def test_a_mesh_scene_too_big_is_refused_before_its_points_are_counted():
+    """watermelon_3d (two surface meshes) at particles_per_cell = 1000: `hpcmpm run` counted
+    the meshes' 3.4e12 bounding-lattice points before its memory check (a fuzz campaign
+    found it still counting after 8 minutes). The shapes' estimate now includes the meshes
+    (`mesh_inside_fraction`), so the run refuses at once; the subprocess's 120 s timeout is
+    what would catch a count."""
+    proc = hpcmpm("run", "inputs/watermelon_3d.toml", "--set",
+                  "simulation.particles_per_cell=1000", "--dry-run", "--out",
+                  "/nonexistent/never/written")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
+    errors = [l for l in proc.stderr.splitlines() if l.startswith("hpcmpm: error:")]
+    assert len(errors) == 1 and "simulation.particles_per_cell" in errors[0], proc.stderr
+    assert "the scene needs about" in errors[0]
+
+
 def test_validate_report_and_dry_run_of_a_small_scene(capsys):
     ok, memory = startup.validate_report(load_scene("inputs/disks_2d.toml")).splitlines()
     assert ok == "inputs/disks_2d.toml: ok (2528 particles, 1 material, dim 2)"
