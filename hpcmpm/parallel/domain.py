@@ -604,18 +604,21 @@ class Domain(Communicator):
                           for (a, b), w in zip(pairs, weights)])
         return self._reduce_sum(local)
 
-    def weighted_mean(self, grid, name: str, power: int) -> np.ndarray:
-        """sum_i m_i^power a_i / sum_i m_i^power (power 1 or 2) over the owned nodes of all
-        ranks, for the grid field ``name`` (zeros when no node has mass); one allreduce of
+    def weighted_sum(self, grid, name: str, power: int) -> tuple[np.ndarray, float]:
+        """(sum_i m_i^power a_i, sum_i m_i^power) over the owned nodes of all ranks (power 1
+        or 2: nodes without mass add nothing) for the grid field ``name``; one allreduce of
         c + 1 doubles."""
         s = self.owned_slices(grid)
-        weight = grid["mass"][s] ** int(power)
+        m = grid["mass"][s]
         a = grid[name][s]
-        a = a.reshape(weight.shape + (-1,))
-        local = np.append((weight[..., None] * a).reshape(-1, a.shape[-1]).sum(axis=0),
-                          weight.sum())
+        components = a.shape[m.ndim] if a.ndim > m.ndim else 1
+        if power not in (1, 2):
+            raise ValueError(f"weighted_sum: power {power} is not 1 or 2")
+        w = (m * m if power == 2 else m).reshape(-1)
+        # A rank without particles has an empty block.
+        local = np.append(w @ a.reshape(-1, components), w.sum())
         total = self._reduce_sum(local)
-        return total[:-1] / total[-1] if total[-1] > 0.0 else np.zeros(a.shape[-1])
+        return total[:-1], float(total[-1])
 
     # -- failure ------------------------------------------------------------------------------
     def install_abort_hook(self) -> None:

@@ -61,13 +61,16 @@ def check_sum_then_fill_equals_one_process(dim):
     # No contribution lost: the owned parts of all blocks add up to the whole reference grid.
     assert domain.dot(grid, "mass", "mass") == pytest.approx(ref_mm, rel=1e-12)
     assert domain.dot(grid, "momentum", "momentum") == pytest.approx(ref_pp, rel=1e-12)
-    # The m^2-weighted mean (the semi-implicit solve's uniform translation) over all ranks'
-    # owned nodes: each node once, like the dot products.
+    # The m^power-weighted sums (the semi-implicit solve's uniform translation) over all
+    # ranks' owned nodes: each node once, like the dot products.
     _, full_m, full_mom = reference_grid(values, domain)
-    w = (full_m * full_m)[..., None]
-    expected = (w * full_mom).reshape(-1, dim).sum(axis=0) / w.sum()
-    np.testing.assert_allclose(domain.weighted_mean(grid, "momentum", 2), expected,
-                               rtol=1e-12, atol=1e-13 * np.abs(expected).max())
+    for power in (1, 2):
+        w = (full_m ** power)[..., None]
+        expected = (w * full_mom).reshape(-1, dim).sum(axis=0)
+        moment, weight = domain.weighted_sum(grid, "momentum", power)
+        np.testing.assert_allclose(moment, expected, rtol=1e-12,
+                                   atol=1e-13 * np.abs(expected).max())
+        assert weight == pytest.approx(w.sum(), rel=1e-12)
 
     # Poison every ghost node, then let the owners refill what this rank's particles touch.
     grid["mass"][~owned] = np.nan
@@ -114,6 +117,13 @@ def test_rank_without_particles_has_an_empty_block():
     grid["mass"][...] = 1.0
     domain.sum_ghosts_to_owners(grid, "mass")
     domain.fill_ghosts(grid, "mass")
+    # A reduction over an empty block (it raised on the rank without particles).
+    grid["momentum"][...] = 2.0
+    moment, weight = domain.weighted_sum(grid, "momentum", 2)
+    owned_mass = grid["mass"][domain.owned_slices(grid)]
+    expected = domain.sum(float(np.sum(owned_mass ** 2)))
+    assert weight == pytest.approx(expected, rel=1e-14) and weight > 0
+    np.testing.assert_allclose(moment, 2.0 * expected, rtol=1e-14)
 
 
 def test_a_region_outside_the_block_is_refused_not_wrapped():
