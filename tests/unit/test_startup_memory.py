@@ -97,6 +97,25 @@ def test_a_mesh_scene_too_big_is_refused_before_its_points_are_counted():
     assert "the scene needs about" in errors[0]
 
 
+def test_a_grid_block_spanning_a_periodic_axis_is_refused_in_one_line():
+    """channel_bingham_2d with its periodic x 1e9 times longer, the fluid still at
+    x < 0.125: the one block of a single rank spans the period (the fluid's support wraps to
+    the far face), 8e9 nodes along x. It was priced at the fluid's box (258 MiB), and the
+    first step raised a MemoryError traceback asking for 4.4 TiB. Now validate and run name
+    the grid block."""
+    periodic = ("inputs/channel_bingham_2d.toml", "--set",
+                "simulation.domain.upper=[125000000.0, 1.0]")
+    proc = hpcmpm("validate", *periodic)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    problem = proc.stdout.splitlines()[1]
+    assert problem.startswith("inputs/channel_bingham_2d.toml: simulation.dx: the scene needs")
+    assert "dense grid block" in problem and "periodic" in problem
+    proc = hpcmpm("run", *periodic, "--out", "/nonexistent/never/written")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
+    errors = [l for l in proc.stderr.splitlines() if l.startswith("hpcmpm: error:")]
+    assert len(errors) == 1 and "dense grid block" in errors[0], proc.stderr
+
+
 def test_validate_report_and_dry_run_of_a_small_scene(capsys):
     ok, memory = startup.validate_report(load_scene("inputs/disks_2d.toml")).splitlines()
     assert ok == "inputs/disks_2d.toml: ok (2528 particles, 1 material, dim 2)"
@@ -241,6 +260,9 @@ def test_bond_bytes_are_shared_by_the_ranks():
     ("inputs/jelly_cube_3d.toml", []),
     ("inputs/disks_2d.toml", []),                               # two disks apart
     ("inputs/sponge_twist_ob_3d.toml", ["simulation.dx=0.05"]),  # semi-implicit: CG vectors
+    # The fluid (x < 0.125) at a periodic face of a channel 32 times longer: the block spans
+    # the period (it was priced at the fluid's box, 1/25 of what the step held).
+    ("inputs/channel_bingham_2d.toml", ["simulation.domain.upper=[4.0, 1.0]"]),
 ])
 def test_grid_estimate_holds_the_block_a_step_allocates(scene, sets):
     """The grid allowance of the estimate (`grid_bytes`) is at least the block one rank
