@@ -363,10 +363,15 @@ class Collider:
             axis = R[:, 2]
             extent = np.abs(axis) * self.size[1] + self.size[0] * np.sqrt(
                 np.maximum(0.0, 1.0 - axis * axis))
-        first = np.floor((centre[:d] - extent - domain_lo[:d]) / dx).astype(np.int64) - 1
-        last = np.ceil((centre[:d] + extent - domain_lo[:d]) / dx).astype(np.int64) + 1
-        lo[:d] = np.clip(first - origin[:d], 0, shape[:d])
-        hi[:d] = np.clip(last - origin[:d] + 1, 0, shape[:d])
+        # Clipped to the block while still floats: a collider far larger than the domain
+        # (half-extents of 9e18 cells) has node indices beyond int64, whose cast gave
+        # INT64_MIN, an empty box, and a collider that acted on no node.
+        block_lo = origin[:d] - 1.0
+        block_hi = origin[:d] + shape[:d] + 1.0
+        first = np.clip(np.floor((centre[:d] - extent - domain_lo[:d]) / dx), block_lo, block_hi)
+        last = np.clip(np.ceil((centre[:d] + extent - domain_lo[:d]) / dx), block_lo, block_hi)
+        lo[:d] = np.clip(first.astype(np.int64) - 1 - origin[:d], 0, shape[:d])
+        hi[:d] = np.clip(last.astype(np.int64) + 2 - origin[:d], 0, shape[:d])
         return lo, hi
 
 

@@ -320,6 +320,24 @@ def test_rotated_sticky_box_stops_every_node_inside_it(dim):
     assert np.all(v[inside] == 0.0)
     assert np.all(v[~inside] == 1.0)
 
+def test_a_collider_far_larger_than_the_domain_still_acts():
+    """A sticky box of half-extents [0.1, 2**63]: its node indices along y exceed int64.
+    Their cast gave INT64_MIN, an empty node box, and the collider stopped no node (a fuzzed
+    hb_mixer_2d). It must stop every node of the strip |x - 1| <= 0.1, at every y."""
+    c = Collider(collider_spec("box", {"center": [1.0, 1.0],
+                                       "half_extents": [0.1, 9223372036854775808.0]}), 2)
+    shape = (21, 21)
+    v = np.ones(shape + (2,))
+    with np.errstate(all="raise"):  # no invalid cast either
+        c.apply(v, np.zeros(2, np.int64), 0.1, np.zeros(2), 0.0, 0.0, np.ones(shape))
+    x = np.stack(np.indices(shape), -1).reshape(-1, 2) * 0.1
+    phi, _ = c.level_set(x, 0.0)
+    strip = (phi <= 0.0).reshape(shape)
+    assert strip[10].all() and strip.sum() % 21 == 0  # whole columns: every y
+    assert np.all(v[strip] == 0.0)
+    assert np.all(v[~strip] == 1.0)
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_rotating_box_carries_body_points(dim):
     t = 0.8
