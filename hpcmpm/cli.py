@@ -8,12 +8,16 @@ exit code; nothing a user can cause ends in a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
+from pathlib import Path
 
 from . import __version__
 from .errors import HpcmpmError
+
+log = logging.getLogger(__name__)
 
 
 def _rank() -> int:
@@ -29,6 +33,32 @@ def configure_logging(quiet: bool = False) -> None:
     logging.basicConfig(level=level, stream=sys.stderr,
                         format=f"[%(asctime)s %(levelname)s rank {rank}] %(message)s",
                         datefmt="%H:%M:%S")
+
+
+@contextlib.contextmanager
+def floating_point_errors_logged():
+    """numpy's floating-point errors (overflow, invalid, divide) go to the debug log, once per
+    place in hpcmpm, instead of RuntimeWarnings on stderr. A scene value beyond the float
+    range (a density of 1e308, a collider speed of 1e308) printed up to four warnings before
+    the run's own one-line error; a non-finite state is still found and reported by the
+    run's checks (the health check before every step and frame, the time step's advance).
+    Library calls outside the command line keep numpy's warnings."""
+    import traceback
+
+    import numpy as np
+
+    seen = set()
+
+    def report(kind, _flag):
+        frames = [f for f in traceback.extract_stack()[:-1]
+                  if f"{os.sep}hpcmpm{os.sep}" in f.filename]
+        where = f"{Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else "numpy"
+        if (kind, where) not in seen:
+            seen.add((kind, where))
+            log.debug("floating-point %s at %s", kind, where)
+
+    with np.errstate(over="call", invalid="call", divide="call", call=report):
+        yield
 
 
 def _validate(args) -> int:
@@ -289,7 +319,8 @@ def main(argv: list[str] | None = None) -> int:
         # does the work and exits with its code, rank 0 alone prints (as errors are).
         sys.stdout = open(os.devnull, "w")
     try:
-        return int(args.handler(args) or 0)
+        with floating_point_errors_logged():
+            return int(args.handler(args) or 0)
     except HpcmpmError as exc:
         report_error(exc)
         return exc.exit_code

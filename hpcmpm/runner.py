@@ -161,9 +161,11 @@ class Runner:
                 if not sim.time + dt > sim.time:
                     raise InstabilityError(
                         f"the time step no longer advances the run at step {sim.step_index}, "
-                        f"t={sim.time:.6g}: dt = {dt:.3g}. Hint: a wave speed beyond the "
-                        f"floating-point range (check the materials' moduli and densities), "
-                        f"or simulation.end_time too large for the step.")
+                        f"t={sim.time:.6g}: dt = {dt:.3g}. Hint: a wave speed, gravity or "
+                        f"boundary speed beyond the floating-point range (check the materials' "
+                        f"moduli and densities, simulation.gravity and the colliders' and "
+                        f"prescribed sets' motion), or simulation.end_time too large for the "
+                        f"step.")
                 target = self.next_frame_time(sim.time)
                 clipped = sim.time + dt >= target * (1 - 1e-12)
                 if clipped and abs(target - sim.time - dt) > 1e-9 * dt:

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import h5py
+import pytest
 import numpy as np
 from launch import run_in_group
 
@@ -120,6 +121,24 @@ def test_a_time_step_that_does_not_advance_the_run_stops_it(tmp_path, capsys):
     lines = [l for l in capsys.readouterr().err.splitlines() if l.startswith("hpcmpm:")]
     assert len(lines) == 1 and lines[0].startswith(
         "hpcmpm: error: the time step no longer advances the run at step 0, t=0: dt = 0.")
+
+
+@pytest.mark.parametrize("scene, setting", [
+    ("inputs/channel_hb_2d.toml", "simulation.gravity=[1e300, 0.0]"),
+    ("inputs/hb_mixer_2d.toml", "colliders.2.angular_velocity=-1e308"),
+])
+def test_values_beyond_the_float_range_give_the_error_line_alone(scene, setting, tmp_path):
+    """A gravity of 1e300 or a collider spin of 1e308 overflow |g| and the boundary speed:
+    dt = 0, stopped in one line. numpy printed its RuntimeWarnings (overflow in the norms)
+    before that line; the command line now sends them to the debug log
+    (`cli.floating_point_errors_logged`)."""
+    exe = Path(sys.executable).with_name("hpcmpm")
+    proc = run_in_group([str(exe), "run", scene, "--out", str(tmp_path / "out"), "--quiet",
+                         "--set", setting], timeout=120)
+    assert proc.returncode == 3, proc.stderr
+    assert proc.stderr.splitlines() == [proc.stderr.strip()], proc.stderr  # one line
+    assert proc.stderr.startswith("hpcmpm: error: the time step no longer advances the run")
+    assert "simulation.gravity" in proc.stderr
 
 
 def test_a_material_update_that_divides_by_zero_stops_at_the_health_check():

@@ -97,7 +97,7 @@ def test_a_mesh_scene_too_big_is_refused_before_its_points_are_counted():
     assert "the scene needs about" in errors[0]
 
 
-def test_a_grid_block_spanning_a_periodic_axis_is_refused_in_one_line():
+def test_a_grid_block_spanning_a_periodic_axis_is_refused_in_one_line(tmp_path):
     """channel_bingham_2d with its periodic x 1e9 times longer, the fluid still at
     x < 0.125: the one block of a single rank spans the period (the fluid's support wraps to
     the far face), 8e9 nodes along x. It was priced at the fluid's box (258 MiB), and the
@@ -110,7 +110,7 @@ def test_a_grid_block_spanning_a_periodic_axis_is_refused_in_one_line():
     problem = proc.stdout.splitlines()[1]
     assert problem.startswith("inputs/channel_bingham_2d.toml: simulation.dx: the scene needs")
     assert "dense grid block" in problem and "periodic" in problem
-    proc = hpcmpm("run", *periodic, "--out", "/nonexistent/never/written")
+    proc = hpcmpm("run", *periodic, "--out", str(tmp_path / "out"))
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     errors = [l for l in proc.stderr.splitlines() if l.startswith("hpcmpm: error:")]
     assert len(errors) == 1 and "dense grid block" in errors[0], proc.stderr
