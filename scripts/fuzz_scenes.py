@@ -13,7 +13,9 @@ anything else, a RuntimeWarning included, is a failure.
 run: the scenes at one particle per cell (those below 30 000 particles then), mutated once;
 each that validates is run in this process by `hpcmpm run` to five of its stable steps. A
 verdict is an exit code of 0, 2, 3 or 4 (hpcmpm's one-line errors); any other code, any
-exception and a run longer than --alarm seconds are failures.
+exception and a run, start-up included, longer than --alarm seconds are failures (numpy's
+floating-point errors are logged, as the command line does:
+`cli.floating_point_errors_logged`).
 
 Failures are printed once per place they were raised, with the scene and the mutation. Exit
 code 1 when there was one. What the campaigns of stop 38 found (280 000 validations, 2 113
@@ -60,7 +62,11 @@ class Alarm(Exception):
 
 
 def where(exc: BaseException) -> tuple[str, str, int]:
-    frame = traceback.extract_tb(exc.__traceback__)[-1]
+    """The exception's type and the last place in hpcmpm it passed (numpy's own line says
+    nothing about which call of ours overflowed)."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = [f for f in frames if "/hpcmpm/" in f.filename.replace("\\", "/")]
+    frame = (ours or frames)[-1]
     return type(exc).__name__, Path(frame.filename).name, frame.lineno
 
 
@@ -125,34 +131,35 @@ def run(scenes, rng, count: int, seconds: float, alarm: int, failures: dict) -> 
                 continue
             scene_file = work / path.name
             out = work / f"run_{i}"
-            try:
-                scene_file.write_text(text)
-                scene = load_scene(str(scene_file), [])
-                sim = Simulation(scene, make_domain(scene))
-                initial_particles(sim)
-                dt = float(sim.stable_dt())
-                end = min(scene.end_time, RUN_STEPS * dt) if 0.0 < dt < math.inf else \
-                    scene.end_time
-                signal.alarm(alarm)
-                with contextlib.redirect_stderr(io.StringIO()), \
-                        contextlib.redirect_stdout(io.StringIO()):
-                    code = cli.main(["run", str(scene_file), "--out", str(out), "--force",
-                                     "--quiet", "--end-time", repr(end)])
-                signal.alarm(0)
-                verdicts[code] = verdicts.get(code, 0) + 1
-                if code not in VERDICTS:
-                    failures.setdefault(("exit code", code), (path, [change], ""))
-            except HpcmpmError:
-                signal.alarm(0)
-                verdicts["error before the run"] = verdicts.get("error before the run", 0) + 1
-            except BaseException as exc:  # noqa: BLE001 - the alarm and anything unexpected
-                signal.alarm(0)
-                if isinstance(exc, KeyboardInterrupt):
-                    raise
-                failures.setdefault(where(exc), (path, [change], str(exc)[:200]))
-            finally:
-                scene_file.unlink(missing_ok=True)
-                shutil.rmtree(out, ignore_errors=True)
+            with cli.floating_point_errors_logged():
+                try:
+                    signal.alarm(alarm)  # the start-up too: it counts every lattice point
+                    scene_file.write_text(text)
+                    scene = load_scene(str(scene_file), [])
+                    sim = Simulation(scene, make_domain(scene))
+                    initial_particles(sim)
+                    dt = float(sim.stable_dt())
+                    end = min(scene.end_time, RUN_STEPS * dt) if 0.0 < dt < math.inf else \
+                        scene.end_time
+                    with contextlib.redirect_stderr(io.StringIO()), \
+                            contextlib.redirect_stdout(io.StringIO()):
+                        code = cli.main(["run", str(scene_file), "--out", str(out), "--force",
+                                         "--quiet", "--end-time", repr(end)])
+                    signal.alarm(0)
+                    verdicts[code] = verdicts.get(code, 0) + 1
+                    if code not in VERDICTS:
+                        failures.setdefault(("exit code", code), (path, [change], ""))
+                except HpcmpmError:
+                    signal.alarm(0)
+                    verdicts["error before the run"] = verdicts.get("error before the run", 0) + 1
+                except BaseException as exc:  # noqa: BLE001 - the alarm and anything unexpected
+                    signal.alarm(0)
+                    if isinstance(exc, KeyboardInterrupt):
+                        raise
+                    failures.setdefault(where(exc), (path, [change], str(exc)[:200]))
+                finally:
+                    scene_file.unlink(missing_ok=True)
+                    shutil.rmtree(out, ignore_errors=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return verdicts
