@@ -96,7 +96,7 @@ CG_RESTARTS = 3
 # to v*), with a margin for the sums of 9 to 27 products in each term. Measured on pie_2d's
 # flight (S = 2e5, the pie stress-free at 3 m/s): |b| grew from 0.03 to 78 eps S |M v*| over
 # its first 0.07 s; the solve took 7 CG iterations in those 68 steps, 26 867 without this stop.
-ROUNDOFF_RESIDUAL = 64 * np.finfo(float).eps
+ROUNDOFF_RESIDUAL = 64 * float(np.finfo(float).eps)
 
 VECTORS = ("velocity_star", "gradient", "inverse_diagonal", "cg_x", "cg_r", "cg_u", "cg_w",
            "cg_p", "cg_s")
@@ -608,8 +608,17 @@ class SemiImplicitIntegrator:
         target = max(relative * relative * bb, floor)
         if bb <= target:
             return 0, False
-        stiffness = self._jacobi(sim, dt, roundoff > 0.0)
-        target = max(target, (roundoff * stiffness) ** 2)
+        stiffness = float(self._jacobi(sim, dt, roundoff > 0.0))
+        guard = float(roundoff) * stiffness
+        if not math.isfinite(guard * guard):
+            # H's diagonal beyond the float range: the round-off stop would be inf and the
+            # solve skipped, the step taken at v* as if the material had no stiffness
+            # (measured: toothpaste_3d with lambda = 1e308 ran on, its paste falling freely).
+            raise SolverFailure(
+                f"the implicit solve's stiffness is beyond the floating-point range at step "
+                f"{sim.step_index}, t={sim.time:.6g}: max diag(H)_i / m_i = {stiffness:.3g}. "
+                f"Hint: check the materials' moduli and viscosities against their densities.")
+        target = max(target, guard * guard)
         if bb <= target:
             return 0, False
         iterations = restarts = 0

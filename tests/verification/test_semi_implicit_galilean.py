@@ -17,6 +17,7 @@ import pytest
 from hpcmpm.runner import initial_particles, make_domain
 from hpcmpm.scene import load_scene, parse_scene
 from hpcmpm.simulation import Simulation
+from hpcmpm.solvers.semi_implicit import SolverFailure
 
 # A neo-Hookean block ringing in its first axial mode (amplitude 0.01 m/s), carried at U.
 BLOCK = """
@@ -40,7 +41,7 @@ preconditioner = "{preconditioner}"
 name = "m"
 type = "neo_hookean"
 density = 1000.0
-E = 1e6
+E = {E}
 nu = 0.3
 
 [[bodies]]
@@ -54,8 +55,8 @@ velocity_field = {{ type = "axial_mode", amplitude = 0.01, length = 1.0, axis = 
 """
 
 
-def one_step(U, preconditioner):
-    scene = parse_scene(BLOCK.format(U=U, preconditioner=preconditioner))
+def one_step(U, preconditioner, E=1e6):
+    scene = parse_scene(BLOCK.format(U=U, preconditioner=preconditioner, E=E))
     sim = Simulation(scene, make_domain(scene))
     initial_particles(sim)
     sim.step(scene.dt)
@@ -98,3 +99,12 @@ def test_a_stiff_body_in_free_flight_is_not_solved_to_round_off():
     # Still a flight: nothing has hit anything.
     v = sim.particles["v"]
     np.testing.assert_allclose(v[:, 0], 3.0, rtol=1e-6)
+
+
+def test_a_stiffness_beyond_the_float_range_stops_the_solve():
+    """E = 1e308: the round-off stop (64 eps S |M v*|, S ~ 1e299 here) squares beyond the
+    float range. As inf it skipped every solve, and the step went on at v* as if the
+    material had no stiffness (measured: toothpaste_3d with lambda = 1e308 ran to its end,
+    the paste falling freely). Now the step stops with a SolverFailure (exit code 3)."""
+    with pytest.raises(SolverFailure, match=r"stiffness is beyond the floating-point range"):
+        one_step(3.0, "jacobi", E=1e308)
