@@ -43,16 +43,17 @@ def floating_point_errors_logged():
     the run's own one-line error; a non-finite state is still found and reported by the
     run's checks (the health check before every step and frame, the time step's advance).
     Library calls outside the command line keep numpy's warnings."""
-    import traceback
-
     import numpy as np
 
     seen = set()
+    ours = f"{os.sep}hpcmpm{os.sep}"
 
     def report(kind, _flag):
-        frames = [f for f in traceback.extract_stack()[:-1]
-                  if f"{os.sep}hpcmpm{os.sep}" in f.filename]
-        where = f"{Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else "numpy"
+        frame = sys._getframe(1)  # the innermost caller of ours: no source lines read
+        while frame is not None and ours not in frame.f_code.co_filename:
+            frame = frame.f_back
+        where = "numpy" if frame is None else \
+            f"{Path(frame.f_code.co_filename).name}:{frame.f_lineno}"
         if (kind, where) not in seen:
             seen.add((kind, where))
             log.debug("floating-point %s at %s", kind, where)

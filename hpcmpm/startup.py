@@ -131,7 +131,8 @@ def grid_bytes(scene, count: int, ranks: int) -> float:
     """The busiest rank's grid block: the nodes of its share of the bodies' bounding box
     (each axis cut into ranks^(1/dim) pieces, plus `BLOCK_EXTRA_NODES`), or twice the cells
     its particles fill, whichever is more (a block is dense: the empty space between bodies
-    on one rank is held too), times `grid_values_per_node`."""
+    on one rank is held too, and the whole period of a periodic axis where the bodies lie
+    at one of its faces), times `grid_values_per_node`."""
     from .parallel.domain import GHOST_ABOVE, GHOST_BELOW
     from .scene import body_bounds
     from .simulation import configured_materials, grid_in_use
