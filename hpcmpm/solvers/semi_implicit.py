@@ -522,23 +522,31 @@ class SemiImplicitIntegrator:
         """grid "inverse_diagonal" = 1 / diag(H) on the unknowns (`inverse_diagonal`), or
         the identity there without a preconditioner. Returns the stiffness ratio
         max diag(H)_i / m_i agreed by all ranks (`stiffness_ratio`) when ``stiffness``,
-        else 1.
+        else 1. diag(H) is computed when either needs it.
 
         The material part needs K_p[a, b, c] = d^2 e_p / dL_ab dL_ac, a part of the tangent
         T_p (`_tangent`), then one scatter."""
-        d, n = sim.dim, sim.particles.n
         out = self._flat["inverse_diagonal"]
-        if not self.jacobi and not stiffness:
+        material = self._material_diagonal(sim, dt) if self.jacobi or stiffness else None
+        if self.jacobi:
+            inverse_diagonal(material, self._mass, self._free, out)
+        else:
             inverse_diagonal(np.zeros_like(out), self._mass, self._free, out)
             out *= self._mass[:, None]  # no preconditioner: the identity on the unknowns
+        if not stiffness:
             return 1.0
+        return sim.domain.max(stiffness_ratio(material, self._mass, self._free))
+
+    def _material_diagonal(self, sim, dt: float) -> np.ndarray:
+        """The material part of diag(H) on the owned nodes, (N, d), in grid "cg_w" (scratch)."""
+        d, n = sim.dim, sim.particles.n
         self._tangent(sim, dt)
         T = self._T[:n].reshape(n, d, d, d, d)
         K = np.empty((n, d, d, d))
         for a in range(d):
             K[:, a, :, :] = T[:, a, :, a, :]
         grid = sim.grid
-        diagonal = grid["cg_w"]  # scratch
+        diagonal = grid["cg_w"]
         with sim.timers("solve_scatter"):
             diagonal.fill(0.0)
             x = sim.particles["x"]
@@ -549,14 +557,7 @@ class SemiImplicitIntegrator:
                                         sim.domain_lo, grid.origin, diagonal)
         with sim.timers("solve_halo"):
             sim.domain.sum_ghosts_to_owners(grid, "cg_w")
-        inverse_diagonal(self._flat["cg_w"], self._mass, self._free, out)
-        ratio = 1.0
-        if stiffness:
-            ratio = sim.domain.max(stiffness_ratio(self._flat["cg_w"], self._mass, self._free))
-        if not self.jacobi:  # the diagonal was for the ratio alone
-            inverse_diagonal(np.zeros_like(out), self._mass, self._free, out)
-            out *= self._mass[:, None]
-        return ratio
+        return self._flat["cg_w"]
 
     def _deformation_momentum(self, sim, vv: float) -> float:
         """|M (v* - c)| over the unknowns' nodes, c = sum m^2 v* / sum m^2 the uniform
