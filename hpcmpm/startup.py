@@ -294,14 +294,15 @@ def check_memory(scene, domain, count: int, exact: bool, body_counts=None) -> Me
 
 def initial_particles(sim) -> MemoryEstimate:
     """Count, check, sample this rank's share, mark prescribed particles, decompose."""
-    from .geometry import (count_overlaps, count_scene, estimate_count, overlap_warning,
+    from .geometry import (count_overlaps, count_scene, estimate_body_counts, overlap_warning,
                            sample_share, share_bounds)
 
     scene, domain, p = sim.scene, sim.domain, sim.particles
     # The shapes first: a scene far too big is refused before every lattice point is tested
     # (a fuzzed particles_per_cell of 1000 on watermelon_3d counted 3.4e12 points for hours).
-    guess, exact = estimate_count(scene)
-    check_memory(scene, domain, guess, exact)
+    # The bodies' estimates go along, so the bond bytes do not sample the meshes again.
+    guesses, exact = estimate_body_counts(scene)
+    check_memory(scene, domain, int(round(sum(guesses))), exact, guesses)
     counts = count_scene(scene, domain.rank, domain.size, domain.sum)
     warning = overlap_warning(scene, count_overlaps(scene, counts.lattices, domain.rank,
                                                     domain.size, domain.sum))
@@ -378,7 +379,7 @@ def validate_report(scene) -> str:
     """The line `hpcmpm validate` prints: particle count and the memory estimate on one rank
     against this machine's available memory (with the rank count that would fit), then the
     materials' notes (`Material.notes`: e.g. bond plasticity's yield stretch)."""
-    from .geometry import body_lattice, count_overlaps, count_scene, estimate_count, \
+    from .geometry import body_lattice, count_overlaps, count_scene, estimate_body_counts, \
         overlap_warning
     from .simulation import configured_materials
 
@@ -391,7 +392,8 @@ def validate_report(scene) -> str:
         body_counts = [counts.body_count(b) for b in range(len(scene.bodies))]
         warning = overlap_warning(scene, count_overlaps(scene, counts.lattices))
     else:
-        count, exact = estimate_count(scene)
+        body_counts, exact = estimate_body_counts(scene)
+        count = int(round(sum(body_counts)))
     estimate = estimate_memory(scene, count, 1, exact, body_counts)
     available = available_memory()
     notes = "".join(f"\n{scene.path}: {line}" for material in
