@@ -727,8 +727,7 @@ class Simulation:
                         if hasattr(e, "strain_energy"))
         g = self.gravity[:self.dim]
         if np.any(g != 0.0):
-            with np.errstate(over="ignore", invalid="ignore"):  # a blown-up state's report
-                local[9] = -float(p["mass"] @ (p["x"] @ g))
+            local[9] = -float(p["mass"] @ (p["x"] @ g))
         total = self.domain.sum(local)
         out = {
             "mass": total[0],

@@ -378,18 +378,16 @@ def initial_velocity(body, x: np.ndarray, dim: int, centroid: np.ndarray) -> np.
     r = x - centroid
     w = body.angular_velocity
     # Values out of range (an angular velocity of 1e308, an axial-mode length of 1e-310)
-    # give inf or NaN velocities without a warning: the run's first health check reports
-    # them as the initial state's, with the particles' ids and materials.
-    with np.errstate(over="ignore", invalid="ignore"):
-        if dim == 2:
-            v += float(w) * np.stack([-r[:, 1], r[:, 0]], axis=1)
-        else:
-            v += np.cross(np.asarray(w, dtype=np.float64), r)
-        f = body.velocity_field
-        if f is not None and f["type"] == "axial_mode":
-            # First axial mode of a bar fixed at 0 and free at L: v = A sin(pi x / 2L).
-            phase = np.pi * x[:, f["axis"]] / (2 * f["length"])
-            v[:, f["axis"]] += f["amplitude"] * np.sin(phase)
+    # give inf or NaN velocities: the run's first health check reports them as the initial
+    # state's, with the particles' ids and materials.
+    if dim == 2:
+        v += float(w) * np.stack([-r[:, 1], r[:, 0]], axis=1)
+    else:
+        v += np.cross(np.asarray(w, dtype=np.float64), r)
+    f = body.velocity_field
+    if f is not None and f["type"] == "axial_mode":
+        # First axial mode of a bar fixed at 0 and free at L: v = A sin(pi x / 2L).
+        v[:, f["axis"]] += f["amplitude"] * np.sin(np.pi * x[:, f["axis"]] / (2 * f["length"]))
     return v
 
 

@@ -47,7 +47,7 @@ def test_an_initial_state_out_of_range_is_named_as_the_scene_s(tmp_path):
     sine is NaN) validate, and the first health check stops them before any step. The hint
     pointed at simulation.cfl, which cannot help there; it now names the initial state. The
     axial mode also printed two RuntimeWarnings (overflow in divide, invalid value in sin)
-    before the line."""
+    before the line; the command line now logs them (`cli.floating_point_errors_logged`)."""
     exe = Path(sys.executable).with_name("hpcmpm")
     for scene, setting, material in (
             ("inputs/disks_2d.toml", "bodies.0.velocity=[1e299, 0.0]", "'rubber'"),
