@@ -324,23 +324,37 @@ DERIVED_OUTPUT = ("render/render_[0-9]*.png", "render/render.mp4", "render/rende
                   "render/render.webp", "diagnostics.csv", "diagnostics.png")
 
 
-def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
-    """A run never overwrites another run's output without ``--force``; with it, that run's
-    frames, checkpoints, XDMF and the pictures made of them (`DERIVED_OUTPUT`) go."""
+def other_runs_output(out_dir: Path) -> list[Path]:
+    """The frames, checkpoints, XDMF and partial files of a run in ``out_dir``."""
+    return [p for p in out_dir.glob("*") if p.suffix in (".h5", ".xdmf", ".tmp")] \
+        if out_dir.is_dir() else []
+
+
+def check_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
+    """A run never overwrites another run's output without ``--force``: the same
+    `OutputExistsError` on every rank. Touches nothing, so it can come before the start-up
+    checks that may still refuse the run (`prepare_output_dir` comes after them)."""
     problem = None
     if comm.rank == 0:
-        existing = [p for p in out_dir.glob("*") if p.suffix in (".h5", ".xdmf", ".tmp")] \
-            if out_dir.is_dir() else []
+        existing = other_runs_output(out_dir)
         if existing and not force:
             problem = (f"{out_dir} already holds output of another run ({len(existing)} files); "
                        f"choose another --out or pass --force to replace it")
-        elif existing:
-            pictures = [p for pattern in DERIVED_OUTPUT for p in out_dir.glob(pattern)]
-            for p in existing + pictures:
-                p.unlink()
     problem = comm.bcast(problem)
     if problem:
         raise OutputExistsError(problem)
+
+
+def prepare_output_dir(comm: Communicator, out_dir: Path, force: bool) -> None:
+    """`check_output_dir`, then, with ``--force``, that run's frames, checkpoints, XDMF and
+    the pictures made of them (`DERIVED_OUTPUT`) go, and the folder is made."""
+    check_output_dir(comm, out_dir, force)
+    if comm.rank == 0:
+        existing = other_runs_output(out_dir)
+        pictures = [p for pattern in DERIVED_OUTPUT for p in out_dir.glob(pattern)] \
+            if existing else []
+        for p in existing + pictures:
+            p.unlink()
     make_output_dir(comm, out_dir)
 
 
@@ -412,11 +426,16 @@ def run_command(args, signal_flag: SignalFlag | None = None) -> int:
 
         return dry_run(scene, comm)
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.scene).stem
-    prepare_output_dir(comm, out_dir, getattr(args, "force", False))
+    force = bool(getattr(args, "force", False))
+    check_output_dir(comm, out_dir, force)
     domain = make_domain(scene, comm)
     domain.install_abort_hook()
     sim = Simulation(scene, domain)
     initial_particles(sim)
+    # A run refused at start-up (memory, a broken initial state) leaves no folder behind,
+    # and --force removes the other run's output only once this run can start.
+    sim.assert_healthy()
+    prepare_output_dir(comm, out_dir, force)
     options = RunOptions(
         out_dir=out_dir,
         end_time=float(scene.end_time if args.end_time is None else args.end_time),

@@ -47,7 +47,8 @@ def test_an_initial_state_out_of_range_is_named_as_the_scene_s(tmp_path):
     sine is NaN) validate, and the first health check stops them before any step. The hint
     pointed at simulation.cfl, which cannot help there; it now names the initial state. The
     axial mode also printed two RuntimeWarnings (overflow in divide, invalid value in sin)
-    before the line; the command line now logs them (`cli.floating_point_errors_logged`)."""
+    before the line; the command line now logs them (`cli.floating_point_errors_logged`).
+    The refusal comes before `--out` is made (it left an empty folder)."""
     exe = Path(sys.executable).with_name("hpcmpm")
     for scene, setting, material in (
             ("inputs/disks_2d.toml", "bodies.0.velocity=[1e299, 0.0]", "'rubber'"),
@@ -61,7 +62,8 @@ def test_an_initial_state_out_of_range_is_named_as_the_scene_s(tmp_path):
         assert f"material {material}" in proc.stderr
         assert "this is the initial state, before the first step" in proc.stderr
         assert "simulation.cfl" not in proc.stderr
-        assert not list(out.glob("frame_*.h5"))  # the broken state is not written
+        # Refused before the output folder is made: no empty folder is left behind.
+        assert not out.exists()
 
 
 def test_a_particle_far_outside_the_domain_is_broken():

@@ -114,6 +114,21 @@ def test_a_grid_block_spanning_a_periodic_axis_is_refused_in_one_line(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     errors = [l for l in proc.stderr.splitlines() if l.startswith("hpcmpm: error:")]
     assert len(errors) == 1 and "dense grid block" in errors[0], proc.stderr
+    assert not (tmp_path / "out").exists()  # refused before the folder is made
+
+
+def test_a_refused_run_with_force_keeps_the_other_runs_output(tmp_path):
+    """`--force` replaces another run's output only once this run can start: a run refused
+    at start-up (here for memory) removed the frames, checkpoints and XDMF of the run it
+    was to replace, and then wrote nothing."""
+    out = tmp_path / "out"
+    out.mkdir()
+    theirs = ["frame_000000.h5", "ckpt_000000100.h5", "particles.xdmf"]
+    for name in theirs:
+        (out / name).write_text("")
+    proc = hpcmpm("run", *BIG, "--out", str(out), "--force")
+    assert proc.returncode == 2 and "2,744,000,000 particles" in proc.stderr, proc.stderr
+    assert sorted(p.name for p in out.iterdir()) == sorted(theirs)
 
 
 def test_validate_report_and_dry_run_of_a_small_scene(capsys):
