@@ -12,7 +12,8 @@ with the weights at x^n. Every grid-level quantity of the solve is one of four p
   D^2 e_p[dL_p] and scale +1 the material part of the Hessian-vector product);
 - `HESSIAN_PRODUCT`: the material part of H u in one particle loop, from each particle's
   tangent T_p = D^2 e_p (d^2 x d^2, built once per linearization from d^2 material Hessian
-  products): `CONTRACT`, T_p and `SCATTER_TENSOR` fused;
+  products; stored as its upper triangle, kernels/tangent.py): `CONTRACT`, T_p and
+  `SCATTER_TENSOR` fused;
 - `SCATTER_DIAGONAL`: the diagonal of the material Hessian,
   ``out_ia += sum_p sum_bc K_p[a, b, c] g_b g_c`` with K_p[a, b, c] = d^2 e_p/dL_ab dL_ac and
   g = grad w_ip (the Jacobi preconditioner).
@@ -35,6 +36,7 @@ import numpy as np
 from numba import njit
 
 from .shape import stencil_base, weights
+from .tangent import packed_index
 
 # Cyclic Jacobi sweeps for a tangent's eigen-decomposition (`project_tangents_psd`):
 # quadratic convergence leaves a 9 x 9 diagonal at round-off in well under ten.
@@ -267,8 +269,9 @@ def scatter_diagonal_3d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
 def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, out):
     """out_i += sum_p (T_p : dL_p) grad w_ip with dL_p = sum_j u_j grad w_jp^T in 2D: the
     material part of a Hessian-vector product in one pass, from the tangent
-    T_p[ab, ce] = d^2 e_p / dL_ab dL_ce (n, 4, 4) that `solvers.semi_implicit` builds once
-    per linearization. `contract_2d`, the tangent and `scatter_tensor_2d` fused."""
+    T_p[ab, ce] = d^2 e_p / dL_ab dL_ce that `solvers.semi_implicit` builds once per
+    linearization, packed (n, 10) as kernels/tangent.py lays it out. `contract_2d`, the
+    tangent and `scatter_tensor_2d` fused."""
     mls, order = len(mls) > 0, len(order)
     inv_dx = 1.0 / dx
     dinv = dinv_factor * inv_dx * inv_dx
@@ -293,10 +296,12 @@ def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
                 a1 += u0 * g1
                 a2 += u1 * g0
                 a3 += u1 * g1
-        t0 = T[p, 0, 0] * a0 + T[p, 0, 1] * a1 + T[p, 0, 2] * a2 + T[p, 0, 3] * a3
-        t1 = T[p, 1, 0] * a0 + T[p, 1, 1] * a1 + T[p, 1, 2] * a2 + T[p, 1, 3] * a3
-        t2 = T[p, 2, 0] * a0 + T[p, 2, 1] * a1 + T[p, 2, 2] * a2 + T[p, 2, 3] * a3
-        t3 = T[p, 3, 0] * a0 + T[p, 3, 1] * a1 + T[p, 3, 2] * a2 + T[p, 3, 3] * a3
+        # T_p's packed upper triangle (kernels/tangent.py): rows 0-3 start at 0, 4, 7, 9.
+        q = T[p]
+        t0 = q[0] * a0 + q[1] * a1 + q[2] * a2 + q[3] * a3
+        t1 = q[1] * a0 + q[4] * a1 + q[5] * a2 + q[6] * a3
+        t2 = q[2] * a0 + q[5] * a1 + q[7] * a2 + q[8] * a3
+        t3 = q[3] * a0 + q[6] * a1 + q[8] * a2 + q[9] * a3
         for i in range(s):
             for j in range(s):
                 g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
@@ -306,7 +311,7 @@ def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
 
 @njit(cache=True)
 def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, out):
-    """3D version of `hessian_product_2d`; T (n, 9, 9)."""
+    """3D version of `hessian_product_2d`; T packed (n, 45)."""
     mls, order = len(mls) > 0, len(order)
     inv_dx = 1.0 / dx
     dinv = dinv_factor * inv_dx * inv_dx
@@ -343,15 +348,16 @@ def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
                     a6 += u2 * g0
                     a7 += u2 * g1
                     a8 += u2 * g2
-        t0 = _row9(T, p, 0, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t1 = _row9(T, p, 1, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t2 = _row9(T, p, 2, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t3 = _row9(T, p, 3, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t4 = _row9(T, p, 4, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t5 = _row9(T, p, 5, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t6 = _row9(T, p, 6, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t7 = _row9(T, p, 7, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        t8 = _row9(T, p, 8, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        q = T[p]  # T_p packed (kernels/tangent.py)
+        t0 = _row9(q, 0, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t1 = _row9(q, 1, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t2 = _row9(q, 2, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t3 = _row9(q, 3, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t4 = _row9(q, 4, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t5 = _row9(q, 5, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t6 = _row9(q, 6, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t7 = _row9(q, 7, a0, a1, a2, a3, a4, a5, a6, a7, a8)
+        t8 = _row9(q, 8, a0, a1, a2, a3, a4, a5, a6, a7, a8)
         for i in range(s):
             for j in range(s):
                 wij = w0[i] * w1[j]
@@ -365,10 +371,13 @@ def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
 
 
 @njit(cache=True, inline="always")
-def _row9(T, p, r, a0, a1, a2, a3, a4, a5, a6, a7, a8):
-    return (T[p, r, 0] * a0 + T[p, r, 1] * a1 + T[p, r, 2] * a2 + T[p, r, 3] * a3
-            + T[p, r, 4] * a4 + T[p, r, 5] * a5 + T[p, r, 6] * a6 + T[p, r, 7] * a7
-            + T[p, r, 8] * a8)
+def _row9(q, r, a0, a1, a2, a3, a4, a5, a6, a7, a8):
+    """Row r of a packed 9 x 9 tangent (kernels/tangent.py) times (a0, ..., a8)."""
+    return (q[packed_index(r, 0, 9)] * a0 + q[packed_index(r, 1, 9)] * a1
+            + q[packed_index(r, 2, 9)] * a2 + q[packed_index(r, 3, 9)] * a3
+            + q[packed_index(r, 4, 9)] * a4 + q[packed_index(r, 5, 9)] * a5
+            + q[packed_index(r, 6, 9)] * a6 + q[packed_index(r, 7, 9)] * a7
+            + q[packed_index(r, 8, 9)] * a8)
 
 
 CONTRACT = {2: contract_2d, 3: contract_3d}
@@ -402,13 +411,17 @@ def project(u, free, nodes, basis, count):
 
 @njit(cache=True)
 def project_tangents_psd(T):
-    """Replace each tangent T_p (n, k, k; the d^2 x d^2 d^2e_p/dL dL of `_tangent`) that has
-    a negative eigenvalue by the nearest positive semi-definite matrix, Q max(Lambda, 0) Q^T
-    of its symmetric part (Teran et al. 2005's definiteness fix, per particle: the grid
-    Hessian M + sum_p B_p^T T_p B_p is then positive definite on the unknowns). The
-    eigen-decomposition is cyclic Jacobi on scratch allocated once. Tangents without a
-    negative eigenvalue are left exactly as they were. Returns how many were changed."""
-    n, k = T.shape[0], T.shape[1]
+    """Replace each tangent T_p (the d^2 x d^2 d^2e_p/dL dL of `_tangent`, packed (n, m) as
+    kernels/tangent.py lays it out) that has a negative eigenvalue by the nearest positive
+    semi-definite matrix, Q max(Lambda, 0) Q^T (Teran et al. 2005's definiteness fix, per
+    particle: the grid Hessian M + sum_p B_p^T T_p B_p is then positive definite on the
+    unknowns). The eigen-decomposition is cyclic Jacobi on scratch allocated once. Tangents
+    without a negative eigenvalue are left exactly as they were. Returns how many were
+    changed."""
+    n, m = T.shape[0], T.shape[1]
+    k = 0
+    while k * (k + 1) // 2 < m:
+        k += 1
     a = np.empty((k, k))
     q = np.empty((k, k))
     changed = 0
@@ -416,7 +429,7 @@ def project_tangents_psd(T):
         scale = 0.0
         for i in range(k):
             for j in range(k):
-                a[i, j] = 0.5 * (T[p, i, j] + T[p, j, i])
+                a[i, j] = T[p, packed_index(i, j, k)]
                 q[i, j] = 1.0 if i == j else 0.0
                 scale += a[i, j] * a[i, j]
         for sweep in range(JACOBI_SWEEPS):
@@ -456,12 +469,12 @@ def project_tangents_psd(T):
             continue
         changed += 1
         for i in range(k):
-            for j in range(k):
+            for j in range(i, k):
                 v = 0.0
-                for m in range(k):
-                    if a[m, m] > 0.0:
-                        v += q[i, m] * a[m, m] * q[j, m]
-                T[p, i, j] = v
+                for e in range(k):
+                    if a[e, e] > 0.0:
+                        v += q[i, e] * a[e, e] * q[j, e]
+                T[p, packed_index(i, j, k)] = v
     return changed
 
 

@@ -10,6 +10,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 
 from ..errors import SceneError
+from ..kernels.tangent import index_table
 from ..state import FieldSpec
 from .failure import SPB_FAILURE, attach_failure, no_pd_stress_problem
 from .params import POISSON, YOUNG, MATERIAL_TABLE_KEYS, Param, check_params, lame, resolve_params
@@ -43,8 +44,9 @@ class Material:
     ``implicit_energy(fields, L, dt) -> float``, ``implicit_gradient(fields, L, dt, G)``
     (G_p = de_p/dL_p) and ``implicit_hessian(fields, L, dt, dL, dG)`` (dG_p = D^2 e_p[dL_p]);
     a material without them (``implicit = False``) runs with the explicit integrator only.
-    ``implicit_tangent`` builds the whole d^2 x d^2 tangent from those products; a model may
-    override it with one pass that shares its per-particle work between the directions.
+    ``implicit_tangent`` builds the d^2 x d^2 tangent from those products (packed: its upper
+    triangle, kernels/tangent.py); a model may override it with one pass that shares its
+    per-particle work between the directions.
     """
 
     name: ClassVar[str] = ""
@@ -163,15 +165,20 @@ class Material:
     implicit: ClassVar[bool] = False
 
     def implicit_tangent(self, fields, L, dt: float, dL, dG, T) -> None:
-        """Writes T (n, d^2, d^2), T_p[ab, ce] = d^2 e_p / dL_ab dL_ce at L_p, one
-        `implicit_hessian` product per unit direction E_ce (dL, dG: (n, d, d) scratch)."""
+        """Writes T, T_p[ab, ce] = d^2 e_p / dL_ab dL_ce at L_p packed (n, d^2 (d^2 + 1) / 2)
+        as kernels/tangent.py lays it out: one `implicit_hessian` product per unit direction
+        E_ce gives column ce, whose entries on and above the diagonal are kept (dL, dG:
+        (n, d, d) scratch)."""
         n, d = L.shape[0], L.shape[-1]
+        k = d * d
+        table = index_table(k)
         for c in range(d):
             for e in range(d):
                 dL[:] = 0.0
                 dL[:, c, e] = 1.0
                 self.implicit_hessian(fields, L, dt, dL, dG)
-                T[:, :, c * d + e] = dG.reshape(n, d * d)
+                column = c * d + e
+                T[:, table[: column + 1, column]] = dG.reshape(n, k)[:, : column + 1]
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v!r}"

@@ -66,6 +66,7 @@ from numba import njit
 
 from ..state import SCALAR, TENSOR, FieldSpec
 from ..errors import SceneError
+from ..kernels.tangent import packed_index
 from .base import Material
 from . import isochoric_return as implicit_return
 from .matrix import (EYE, add, add_identity, axpy, ddot, det, dim_of, inverse, load, mul,
@@ -422,9 +423,10 @@ def implicit_hessian(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, 
 @njit(cache=True)
 def implicit_tangent(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, inv_wi,
                      sigma_y, inv_h, eta, units, T, decrements):
-    """T_p[:, k] = D^2 e_p(L_p)[E_k] for the d^2 unit directions E_k (``units`` (d^2, d, d)):
-    `implicit_hessian` for each E_k in one pass, the plastic factors and b_hat's parts
-    computed once per particle instead of once per direction (the same arithmetic, tested)."""
+    """T_p[:, k] = D^2 e_p(L_p)[E_k] for the d^2 unit directions E_k (``units`` (d^2, d, d)),
+    its entries on and above the diagonal, packed (kernels/tangent.py): `implicit_hessian`
+    for each E_k in one pass, the plastic factors and b_hat's parts computed once per
+    particle instead of once per direction (the same arithmetic, tested)."""
     nk = units.shape[0]
     for p in range(b.shape[0]):
         L = load(Lv, p, eye)
@@ -437,8 +439,8 @@ def implicit_tangent(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, 
                 hD = implicit_return.hessian_point(bn, L, D, dt, J[p], mu, lam, sigma_y,
                                                    1.0 / inv_h, eta, decrements[p])
                 g = axpy(wv, sym(D), scale(w, hD))
-                for r in range(nk):
-                    T[p, r, k] = g[r]
+                for r in range(k + 1):
+                    T[p, packed_index(r, k, nk)] = g[r]
         else:
             S, R, B = plastic_factors(mode, load(b, p, eye), load(Fe, p, eye),
                                       load(Fe_prev, p, eye), dt, inv_wi, sigma_y, inv_h, eta)
@@ -446,8 +448,8 @@ def implicit_tangent(eye, mode, b, J, Fe, Fe_prev, vol0, Lv, dt, mu, lam, mu_n, 
             for k in range(nk):
                 D = load(units, k, eye)
                 g = axpy(wv, sym(D), scale(w, _hessian_from_parts(parts, B, D, dt, mu, lam)))
-                for r in range(nk):
-                    T[p, r, k] = g[r]
+                for r in range(k + 1):
+                    T[p, packed_index(r, k, nk)] = g[r]
 
 
 _NO_DECREMENTS = np.zeros(0)
@@ -662,7 +664,8 @@ class LeftCauchyGreenMaterial(Material):
                          self._decrements(fields, L, dt))
 
     def implicit_tangent(self, fields, L, dt: float, dL, dG, T) -> None:
-        """Writes T (n, d^2, d^2) in one pass (`implicit_tangent`); dL, dG unused."""
+        """Writes T packed (n, d^2 (d^2 + 1) / 2) in one pass (`implicit_tangent`); dL, dG
+        unused."""
         implicit_tangent(*self._implicit_args(fields), L, dt, *self._moduli(),
                          UNIT_DIRECTIONS[L.shape[-1]], T, self._decrements(fields, L, dt))
 

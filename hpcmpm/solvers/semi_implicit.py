@@ -53,6 +53,7 @@ from ..kernels.implicit import (CONTRACT, HESSIAN_PRODUCT, SCATTER_DIAGONAL, SCA
                                 add_inertia, stiffness_ratio,
                                 add_mass_times, axpy, inverse_diagonal, multiply, project,
                                 project_tangents_psd, release_reactions, xpby)
+from ..kernels.tangent import index_table, packed_size
 from ..kernels.transfer import FLIP, MLS, static
 from ..state import VECTOR
 from .explicit import explicit_limits
@@ -161,9 +162,10 @@ class SemiImplicitIntegrator:
     @staticmethod
     def scratch_bytes_per_particle(dim: int) -> int:
         """Per-particle arrays of the solve, all at the particles' capacity: L, G, dL, dG
-        (d x d each), the tangents T (d^2 x d^2, `_tangent`) and, while the Jacobi diagonal
-        is built, K (d x d x d): 1152 B in 3D (of which the tangents 648), 320 B in 2D."""
-        return 8 * (4 * dim * dim + dim ** 4 + dim ** 3)
+        (d x d each), the tangents T (the upper triangle of d^2 x d^2, `_tangent`) and, while
+        the Jacobi diagonal is built, K (d x d x d): 864 B in 3D (of which the tangents
+        360), 272 B in 2D."""
+        return 8 * (4 * dim * dim + packed_size(dim * dim) + dim ** 3)
 
     def stable_dt(self, sim, speed: float) -> float:
         """Advection bound (module docstring): the largest dt with
@@ -356,7 +358,7 @@ class SemiImplicitIntegrator:
             self._G = np.zeros((n, d, d))
             self._dL = np.zeros((n, d, d))
             self._dG = np.zeros((n, d, d))
-            self._T = np.zeros((n, d * d, d * d))  # the tangents (`_tangent`)
+            self._T = np.zeros((n, packed_size(d * d)))  # the tangents (`_tangent`)
             self._scratch_n = n
         self._ranges = sim.grid_ranges()
         self._slices = [(sim.materials[g], sim.material_fields(g), *sim.group_slices[g])
@@ -493,7 +495,8 @@ class SemiImplicitIntegrator:
         many times at the same L). Exact: D^2 e_p[dL] is linear in dL, so T_p : dL is the
         material's product up to round-off (tested); a material's product recomputes its
         plastic return and b_hat(L) from L each time, where T_p is d^4 multiply-adds.
-        Memory: d^4 doubles per particle (128 B in 2D, 648 B in 3D)."""
+        Memory: the upper triangle, d^2 (d^2 + 1) / 2 doubles per particle (80 B in 2D,
+        360 B in 3D; kernels/tangent.py)."""
         if self._tangent_ready:
             return
         T = self._T
@@ -541,10 +544,8 @@ class SemiImplicitIntegrator:
         """The material part of diag(H) on the owned nodes, (N, d), in grid "cg_w" (scratch)."""
         d, n = sim.dim, sim.particles.n
         self._tangent(sim, dt)
-        T = self._T[:n].reshape(n, d, d, d, d)
-        K = np.empty((n, d, d, d))
-        for a in range(d):
-            K[:, a, :, :] = T[:, a, :, a, :]
+        # K[p, a, b, c] = T_p[ab, ac], read from the packed rows.
+        K = self._T[:n][:, self._diagonal_blocks(d)]
         grid = sim.grid
         diagonal = grid["cg_w"]
         with sim.timers("solve_scatter"):
@@ -558,6 +559,13 @@ class SemiImplicitIntegrator:
         with sim.timers("solve_halo"):
             sim.domain.sum_ghosts_to_owners(grid, "cg_w")
         return self._flat["cg_w"]
+
+    @staticmethod
+    def _diagonal_blocks(d: int) -> np.ndarray:
+        """(d, d, d) packed positions of T[ab, ac] (kernels/tangent.py)."""
+        table = index_table(d * d)
+        a, b, c = np.meshgrid(np.arange(d), np.arange(d), np.arange(d), indexing="ij")
+        return table[a * d + b, a * d + c]
 
     def _deformation_momentum(self, sim, vv: float) -> float:
         """|M (v* - c)| over the unknowns' nodes, c = sum m^2 v* / sum m^2 the uniform

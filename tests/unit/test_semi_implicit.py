@@ -414,19 +414,21 @@ def test_tangent_projection_is_the_nearest_positive_semidefinite_matrix(k):
     becomes Q max(Lambda, 0) Q^T (1e-12 of its norm: cyclic Jacobi converges to round-off),
     one without is left bit for bit, and the count names the changed ones."""
     from hpcmpm.kernels.implicit import project_tangents_psd
+    from hpcmpm.kernels.tangent import pack, unpack
 
     rng = np.random.default_rng(k)
     q, _ = np.linalg.qr(rng.standard_normal((k, k)))
     indefinite = q @ np.diag(np.linspace(-3.0, 5.0, k)) @ q.T
     definite = q @ np.diag(np.linspace(0.5, 5.0, k)) @ q.T
-    T = np.array([indefinite, definite])
+    T = pack(np.array([indefinite, definite]))  # the solver's layout (kernels/tangent.py)
     before = T.copy()
     assert project_tangents_psd(T) == 1
     lam, vec = np.linalg.eigh(indefinite)
     expected = vec @ np.diag(np.maximum(lam, 0.0)) @ vec.T
-    np.testing.assert_allclose(T[0], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    full = unpack(T)
+    np.testing.assert_allclose(full[0], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
     assert np.array_equal(T[1], before[1])
-    assert np.linalg.eigvalsh(T[0]).min() > -1e-12
+    assert np.linalg.eigvalsh(full[0]).min() > -1e-12
 
 
 def test_negative_curvature_is_solved_again_with_convexified_tangents(monkeypatch):
@@ -615,3 +617,23 @@ def test_time_step_keeps_an_off_grid_pd_body_stable():
     p = sim.particles
     pd = p["group"][:p.n] == 1
     assert np.linalg.norm(p["v"][:p.n][pd], axis=1).max() < 1.5
+
+
+@pytest.mark.parametrize("k", [4, 9])
+def test_packed_tangent_layout(k):
+    """kernels/tangent.py: the numba index, the numpy table and `pack` agree on one layout
+    (the upper triangle row by row, k (k + 1) / 2 entries, each position used once), and a
+    symmetric tangent survives pack and unpack bit for bit."""
+    from hpcmpm.kernels.tangent import index_table, pack, packed_index, packed_size, unpack
+
+    table = index_table(k)
+    assert np.array_equal(table, table.T)
+    assert all(packed_index(r, c, k) == table[r, c] for r in range(k) for c in range(k))
+    assert sorted(set(table.ravel())) == list(range(packed_size(k)))
+    rng = np.random.default_rng(k)
+    a = rng.standard_normal((3, k, k))
+    T = a + a.transpose(0, 2, 1)
+    S = pack(T)
+    assert S.shape == (3, packed_size(k))
+    assert np.array_equal(S[:, table[1, 2]], T[:, 1, 2])
+    assert np.array_equal(unpack(S), T)
