@@ -1,7 +1,8 @@
 """The semi-implicit integrator on 1, 2 and 4 (oversubscribed) ranks (issue 9): at CG
 tolerance 1e-12 and a fixed dt the runs agree to 1e-10 relative, particles compared by id, on
 reduced sizes of sponge_twist_ob_3d (prescribed sets, Oldroyd-B, 3D), the Bingham channel
-(periodic x, sticky walls, Herschel-Bulkley; linearized, and Newton to a tight tolerance) and
+(periodic x, sticky walls, Herschel-Bulkley; linearized, and Newton to a tight tolerance), the
+Herschel-Bulkley channel (Newton past the precision of E) and
 toothpaste_3d (a frictional box collider and walls); the
 full sizes (50 and 200 steps) are
 scripts/study_semi_implicit_ranks.py. A restart on the same rank count is bitwise."""
@@ -25,6 +26,14 @@ CASES = {
     # leaves a difference of that tolerance).
     "bingham_newton": ("inputs/channel_bingham_2d.toml", 0.01, 24,
                        ["simulation.dx=0.03125", "solver.newton_tolerance=1e-11"]),
+    # Herschel-Bulkley's implicit return under Newton at a tight tolerance, where E's own
+    # error (the return's scalar Newton stops at 1e-15 of its decrement: 1.4e-12 of E here)
+    # exceeds the step's predicted decrease: the line search must stop on it (`_line_search`)
+    # on every rank count. It failed on 2 ranks ("no decrease after 30 halvings") and passed
+    # on 1 by chance, before the search measured that error.
+    "hb_newton_one_ppc": ("inputs/channel_hb_2d.toml", 0.01, 12,
+                          ["simulation.dx=0.03125", "simulation.particles_per_cell=1",
+                           "solver.newton_tolerance=1e-11"]),
     # Friction from the contact reactions (`_release_reactions`): the paste lands on the
     # frictional box collider at t = 0.08 and spreads over it until t = 0.16.
     "toothpaste": ("inputs/toothpaste_3d.toml", 0.01, 16, ["simulation.dx=0.05"]),
