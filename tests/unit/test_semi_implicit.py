@@ -375,6 +375,50 @@ def test_line_search_demands_sufficient_decrease(monkeypatch):
     np.testing.assert_allclose(f["velocity"], c, rtol=0, atol=1e-12 * np.abs(c).max())
 
 
+def test_line_search_stops_on_the_error_of_E_and_fails_on_a_wrong_slope(monkeypatch):
+    """When no halving lowers E, `_line_search` reads E's error at its shortest trial (alpha
+    ~ 2e-9, where E's own change is nothing). On the quadratic of the test above, with the
+    Newton step dx = c - v and every trial's E off by |g.dx| (an error the size of the
+    predicted decrease, as the implicit return's tolerance made it on channel_hb_2d), no
+    length shows a decrease: Newton has converged to E's precision and the longest trial
+    (alpha = 1, at c) is taken. But a gradient that claims descent where E rises (its slope's
+    sign wrong) leaves an error at the shortest trial of 2e-9 |g.dx| at most, far below the
+    predicted decrease: that still fails, as before."""
+    from hpcmpm.solvers.semi_implicit import SolverFailure
+
+    sim, integ, dt = grid_problem(dim=2, mode="newton", dt=5e-3)
+    grid = Grid(sim, integ, dt)
+    f = grid.f
+    mass, free = integ._mass[:, None], integ._free[:, None]
+    v = f["velocity"].copy()
+    c = v + 1e-3 * grid.projected(np.random.default_rng(17).standard_normal(v.shape))
+    slope = -float(np.sum(mass * free * (c - v) ** 2))  # g.dx at v along dx = c - v
+    error = {"velocity_trial": abs(slope)}
+
+    def energy(sim, dt, name):
+        w = (f[name] - c) * free
+        return 0.5 * float(np.sum(mass * w * w)) + error.get(name, 0.0)
+
+    monkeypatch.setattr(integ, "_energy", energy)
+    E0 = energy(sim, dt, "velocity")
+    f["gradient"][:] = grid.projected(-mass * (v - c))  # "gradient" holds -P g (`solve`)
+    f["cg_x"][:] = c - v
+    integ._unresolved = False
+    integ._line_search(sim, dt, E0, False)
+    assert integ._unresolved
+    np.testing.assert_allclose(f["velocity"], c, rtol=0, atol=1e-12 * np.abs(c).max())
+
+    # A slope of the wrong sign: E rises along dx = v - c while the gradient claims descent.
+    f["velocity"][:] = v
+    f["cg_x"][:] = v - c
+    f["gradient"][:] = grid.projected(mass * (v - c))
+    error.clear()
+    integ._unresolved = False
+    with pytest.raises(SolverFailure, match="found no decrease"):
+        integ._line_search(sim, dt, E0, False)
+    assert not integ._unresolved
+
+
 def test_linearized_step_solves_the_newton_equation_at_v_star():
     """mode "linearized" is one Newton step from the explicit predictor v* (000 §5.5;
     Stomakhin 2013): the result v satisfies the Newton equation linearized at v*,
