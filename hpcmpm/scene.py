@@ -51,6 +51,7 @@ class SolverSpec:
     tolerance: float = 1e-6
     max_iterations: int = 1000
     newton_tolerance: float = 1e-6
+    newton_stop: str = "momentum"
 
 
 @dataclass(frozen=True)
@@ -426,6 +427,9 @@ SIMULATION_KEYS = ("dim", "domain", "dx", "particles_per_cell", "kernel", "trans
 VOLUME_AVERAGING = ("none", "increment")
 SOLVER_MODES = ("linearized", "newton")
 PRECONDITIONERS = ("jacobi", "none")
+# Newton's stop: |grad E| <= newton_tolerance |M v*| (the issue's), or relative to v*'s
+# momentum less its uniform translation (`SemiImplicitIntegrator._newton_reference`).
+NEWTON_STOPS = ("momentum", "galilean")
 
 
 # Cell indices come from x / dx in float64: beyond 2**53 cells along an axis neighbouring
@@ -660,7 +664,7 @@ def _parallel(c: Checker, raw: dict) -> ParallelSpec:
 def _solver(c: Checker, raw: dict) -> SolverSpec:
     t = c.table(raw, "solver", "")
     c.keys(t, "solver", ("mode", "preconditioner", "tolerance", "max_iterations",
-                         "newton_tolerance"))
+                         "newton_tolerance", "newton_stop"))
     d = SolverSpec()
     values = dict(
         mode=c.string(t, "mode", "solver", d.mode, SOLVER_MODES),
@@ -671,7 +675,8 @@ def _solver(c: Checker, raw: dict) -> SolverSpec:
         max_iterations=c.number(t, "max_iterations", "solver", d.max_iterations, low=1,
                                 low_open=False, integer=True),
         newton_tolerance=c.number(t, "newton_tolerance", "solver", d.newton_tolerance,
-                                  low=0.0, high=1.0, high_open=True))
+                                  low=0.0, high=1.0, high_open=True),
+        newton_stop=c.string(t, "newton_stop", "solver", d.newton_stop, NEWTON_STOPS))
     return SolverSpec(**{k: getattr(d, k) if v is None else v for k, v in values.items()})
 
 

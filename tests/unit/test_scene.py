@@ -196,6 +196,9 @@ CASES = {
                              "solver.tolerance: must be < 1.0, got 1.0"),
     "solver_max_iterations_float": (GOOD + "[solver]\nmax_iterations = 100.5\n",
                                     "solver.max_iterations: must be an integer, got float 100.5"),
+    "solver_newton_stop": (GOOD + '[solver]\nnewton_stop = "relative"\n',
+                           "solver.newton_stop: unknown value 'relative' (valid: momentum, "
+                           "galilean)"),
     "duplicate_material": (GOOD.replace("[[bodies]]", '[[materials]]\nname = "rubber"\ntype = '
                                         '"neo_hookean"\ndensity = 1.0\nE = 1.0\nnu = 0.3\n\n'
                                         "[[bodies]]", 1),
@@ -463,8 +466,8 @@ def test_defaults_of_absent_keys():
     assert scene.walls.faces == (WallFace("slip", 0.0),) * 4
     assert scene.integrator == "explicit"
     assert (scene.solver.mode, scene.solver.preconditioner, scene.solver.tolerance,
-            scene.solver.max_iterations, scene.solver.newton_tolerance) == (
-        "linearized", "jacobi", 1e-6, 1000, 1e-6)
+            scene.solver.max_iterations, scene.solver.newton_tolerance,
+            scene.solver.newton_stop) == ("linearized", "jacobi", 1e-6, 1000, 1e-6, "momentum")
     assert (scene.parallel.rebalance_threshold, scene.parallel.rebalance_every) == (1.2, 20)
 
 
