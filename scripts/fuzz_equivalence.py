@@ -54,6 +54,7 @@ VARIATIONS = (
     ("parallel.rebalance_every", ("1",)),
     ("simulation.volume_averaging", ('"increment"',)),
     ("solver.mode", ('"newton"', '"linearized"')),
+    ("solver.newton_stop", ('"galilean"',)),  # read by Newton only
     ("solver.preconditioner", ('"none"',)),  # with PLAIN_CG's iteration cap
     ("simulation.integrator", ('"semi_implicit"', '"explicit"')),
     # Peridynamic materials (the first material of the PD cases; another type refuses them).
