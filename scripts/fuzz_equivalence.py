@@ -2,6 +2,7 @@
 """Rank-count and restart equivalence of the shipped scenes under random valid variations.
 
     python scripts/fuzz_equivalence.py --seconds 1800 --seed 1
+    python scripts/fuzz_equivalence.py --count 1 --scenes pie_2d --changes 'simulation.kernel="cubic"'
 
 tests/mpi/test_scene_ranks.py runs every shipped scene as shipped (reduced in size, with a
 fixed dt) on 1 and 2 ranks and restarts the 2-rank run from its half-way checkpoint. This
@@ -172,6 +173,8 @@ def main(argv=None) -> int:
     parser.add_argument("--count", type=int, default=10**9, help="trials at most")
     parser.add_argument("--timeout", type=float, default=300, help="seconds a launch may take")
     parser.add_argument("--scenes", nargs="*", help="scene names (default: every case)")
+    parser.add_argument("--changes", nargs="*",
+                        help="these changes (KEY=VALUE) instead of random ones: a trial again")
     args = parser.parse_args(argv)
     rng = random.Random(args.seed)
     scenes = sorted(args.scenes or CASES)
@@ -184,6 +187,8 @@ def main(argv=None) -> int:
         scene = rng.choice(scenes)
         chosen = rng.sample(VARIATIONS, rng.randint(1, 3))
         changes = [f"{key}={rng.choice(values)}" for key, values in chosen]
+        if args.changes is not None:
+            changes = list(args.changes)
         if any(c.startswith("parallel.rebalance_every") for c in changes):
             changes += HARD_BALANCE
         if any(c.startswith("solver.preconditioner") for c in changes):
