@@ -17,7 +17,7 @@ issue's corrections). Its gradient and Hessian-vector product on the grid are
 (`hpcmpm.kernels.implicit`). ``solver.mode``: "linearized" takes one Newton step from the
 explicit predictor v* (Stomakhin 2013), "newton" iterates with a backtracking line search on E
 (+inf where a material's state would be inadmissible) until |g| <= newton_tolerance |M v*|
-(Gast 2015; 000 §5.7). Each Newton step solves P H P dv = -P g by preconditioned conjugate
+(Gast 2015; 000 §5.7; ``solver.newton_stop = "galilean"``: `_newton_reference`). Each Newton step solves P H P dv = -P g by preconditioned conjugate
 gradients (Jacobi: the exact diagonal of H, or none) to a relative tolerance; P is the
 constraint mask. A CG that stops on negative curvature (a non-convex energy) is run again with
 every particle tangent projected onto a positive semi-definite one (`_convexify`), and the
