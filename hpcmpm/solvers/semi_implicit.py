@@ -17,8 +17,9 @@ issue's corrections). Its gradient and Hessian-vector product on the grid are
 (`hpcmpm.kernels.implicit`). ``solver.mode``: "linearized" takes one Newton step from the
 explicit predictor v* (Stomakhin 2013), "newton" iterates with a backtracking line search on E
 (+inf where a material's state would be inadmissible) until |g| <= newton_tolerance |M v*|
-(Gast 2015; 000 §5.7; ``solver.newton_stop = "galilean"``: `_newton_reference`). Each Newton step solves P H P dv = -P g by preconditioned conjugate
-gradients (Jacobi: the exact diagonal of H, or none) to a relative tolerance; P is the
+(Gast 2015; 000 §5.7; ``solver.newton_stop = "galilean"``: `_newton_reference`). Each Newton
+step solves P H P dv = -P g by preconditioned conjugate gradients (Jacobi: the exact
+diagonal of H, or none) to a relative tolerance; P is the
 constraint mask. A CG that stops on negative curvature (a non-convex energy) is run again with
 every particle tangent projected onto a positive semi-definite one (`_convexify`), and the
 linearized step is halved where it would make a state inadmissible or raise E. Walls and
@@ -140,6 +141,7 @@ class SemiImplicitIntegrator:
         self._scratch_n = -1
         self._T = None
         self._tangent_ready = False
+        self._diagonal_ready = False  # grid "inverse_diagonal" is of the current tangents
         # Statistics: per step, and the window since the last `diagnostics()` call.
         self.last_step: dict[str, float] = {}
         self._window: list[tuple[int, int]] = []
@@ -419,7 +421,7 @@ class SemiImplicitIntegrator:
         """grid "gradient" = g at the current velocity on the unknowns' nodes, constrained
         directions included."""
         self._contract(sim, "velocity", self._L)
-        self._tangent_ready = False
+        self._tangent_ready = self._diagonal_ready = False
         with sim.timers("solve_material"):
             for material, fields, start, stop in self._slices:
                 try:
@@ -525,16 +527,22 @@ class SemiImplicitIntegrator:
         self._tangent(sim, dt)
         with sim.timers("solve_material"):
             changed = project_tangents_psd(self._T[:sim.particles.n])
+        self._diagonal_ready = False
         self.convexified += sim.domain.sum(int(changed))
 
     def _jacobi(self, sim, dt: float, stiffness: bool = False) -> float:
         """grid "inverse_diagonal" = 1 / diag(H) on the unknowns (`inverse_diagonal`), or
         the identity there without a preconditioner. Returns the stiffness ratio
         max diag(H)_i / m_i agreed by all ranks (`stiffness_ratio`) when ``stiffness``,
-        else 1. diag(H) is computed when either needs it.
+        else 1. diag(H) is computed when either needs it, and the preconditioner is kept
+        while the tangents are the same (Newton's galilean stop computes it, with S, before
+        the first CG of a step needs it).
 
         The material part needs K_p[a, b, c] = d^2 e_p / dL_ab dL_ac, a part of the tangent
         T_p (`_tangent`), then one scatter."""
+        if self._diagonal_ready and not stiffness:
+            return 1.0
+        self._diagonal_ready = True
         out = self._flat["inverse_diagonal"]
         material = self._material_diagonal(sim, dt) if self.jacobi or stiffness else None
         if self.jacobi:
@@ -700,8 +708,9 @@ class SemiImplicitIntegrator:
         the scene neither loosens the stop (the issue's |M v*| grows with it: the block of
         tests/verification/test_semi_implicit_galilean.py carried at 300 m/s took 0 Newton
         steps) nor asks for g below its round-off, eps S |M v*| (a body in free flight).
-        S needs H's diagonal at the first linearization: one scatter a step. 0 when v* has
-        no momentum (the caller falls back on |g_0|)."""
+        S needs H's diagonal at the first linearization, which the first CG then reuses
+        (`_jacobi`): one more allreduce a step. 0 when v* has no momentum (the caller falls
+        back on |g_0|)."""
         stiffness = float(self._jacobi(sim, dt, True))
         roundoff = ROUNDOFF_RESIDUAL * stiffness * math.sqrt(vv)
         if not math.isfinite(roundoff * roundoff):
