@@ -51,9 +51,10 @@ from ..boundaries.colliders import HALF_SPACE, SPHERE, BOX
 from ..errors import InstabilityError, SceneError
 from ..kernels.grid import update_velocity
 from ..kernels.implicit import (CONTRACT, HESSIAN_PRODUCT, SCATTER_DIAGONAL, SCATTER_TENSOR,
-                                add_inertia, stiffness_ratio,
-                                add_mass_times, axpy, inverse_diagonal, multiply, project,
-                                project_tangents_psd, release_reactions, xpby)
+                                add_inertia, add_mass_times, add_mass_times_active, cg_dots,
+                                cg_update, constrain, inverse_diagonal, multiply, project,
+                                project_tangents_psd, release_reactions, residual_active,
+                                stiffness_ratio)
 from ..kernels.tangent import index_table, packed_size
 from ..kernels.transfer import FLIP, MLS, static
 from ..state import VECTOR
@@ -335,6 +336,7 @@ class SemiImplicitIntegrator:
         owned = sim.domain.owned_slices(grid)
         free[owned] = grid["mass"][owned] > 0.0
         self._free = free.reshape(-1)
+        self._active = np.flatnonzero(self._free)  # `cg_update`: the CG sweeps these alone
         if self.mode == "newton":  # the line search's start cap (`_line_search`)
             self._total_mass = sim.domain.sum(float(grid["mass"][owned].sum()))
         # Constraint directions at the trial velocity v*.
@@ -375,6 +377,18 @@ class SemiImplicitIntegrator:
     # -- grid-level pieces ------------------------------------------------------------------
     def _project(self, name: str) -> None:
         project(self._flat[name], self._free, self._nodes, self._node_basis, self._node_count)
+
+    def _constrain(self, name: str) -> None:
+        """`_project` on the unknowns alone (the other nodes are left as they are)."""
+        constrain(self._flat[name], self._free, self._nodes, self._node_basis,
+                  self._node_count)
+
+    def _cg_dots(self, sim) -> np.ndarray:
+        """(r.u, w.u, r.r) of the CG over all ranks, in one allreduce (`cg_dots`)."""
+        f = self._flat
+        with sim.timers("solve_dots"):
+            local = np.array(cg_dots(self._active, f["cg_r"], f["cg_u"], f["cg_w"]))
+            return sim.domain.sum(local)
 
     def _dots(self, sim, pairs, weights=None):
         with sim.timers("solve_dots"):
@@ -471,11 +485,13 @@ class SemiImplicitIntegrator:
         # (the solved velocity stays if no fraction of it is admissible).
         self._backtrack(sim, dt, solved, change)
 
-    def _hessian(self, sim, dt: float, src: str, dst: str, projected: bool = True) -> None:
+    def _hessian(self, sim, dt: float, src: str, dst: str, projected: bool = True,
+                 unknowns_only: bool = False) -> None:
         """grid[dst] = P H P grid[src] at the L of the last `_gradient`: fill the ghosts of
         src, one fused particle loop with the tangents (`_tangent`), sum to the owners.
         ``projected=False``: H grid[src] on the unknowns' nodes, constrained directions
-        included."""
+        included. ``unknowns_only`` (the CG's products): grid[dst] is set on the unknowns
+        alone; other nodes keep the particles' partial sums instead of zeros."""
         self._tangent(sim, dt)
         grid = sim.grid
         with sim.timers("solve_halo"):
@@ -492,9 +508,15 @@ class SemiImplicitIntegrator:
         with sim.timers("solve_halo"):
             sim.domain.sum_ghosts_to_owners(grid, dst)
         with sim.timers("solve_vector"):
-            add_mass_times(self._flat[dst], self._mass, self._flat[src], self._free)
-            if projected:
-                self._project(dst)
+            if unknowns_only:
+                add_mass_times_active(self._flat[dst], self._mass, self._flat[src],
+                                      self._active)
+                if projected:
+                    self._constrain(dst)
+            else:
+                add_mass_times(self._flat[dst], self._mass, self._flat[src], self._free)
+                if projected:
+                    self._project(dst)
 
     def _tangent(self, sim, dt: float) -> None:
         """T_p[ab, ce] = d^2 e_p / dL_ab dL_ce at the L of the last `_gradient`, from each
@@ -621,9 +643,9 @@ class SemiImplicitIntegrator:
         (b at that round-off) would otherwise have its round-off solved to the tolerance,
         hundreds of iterations on a stiff crust for nothing."""
         f = self._flat
-        x, r, u, w, p, s = (f[k].reshape(-1) for k in ("cg_x", "cg_r", "cg_u", "cg_w", "cg_p",
-                                                       "cg_s"))
-        b = f[rhs].reshape(-1)
+        x, r, u, w, p, s = (f[k] for k in ("cg_x", "cg_r", "cg_u", "cg_w", "cg_p", "cg_s"))
+        b, inverse, active = f[rhs], f["inverse_diagonal"], self._active
+        # Zero off the unknowns (b is projected); `cg_update` then writes the unknowns alone.
         x[:] = 0.0
         r[:] = b
         (bb,) = self._dots(sim, [(rhs, rhs)])
@@ -643,10 +665,9 @@ class SemiImplicitIntegrator:
             return 0, False
         iterations = restarts = 0
         while True:
-            self._precondition("cg_r", "cg_u")
-            self._hessian(sim, dt, "cg_u", "cg_w")
-            gamma, delta, rr = self._dots(sim, [("cg_r", "cg_u"), ("cg_w", "cg_u"),
-                                                ("cg_r", "cg_r")])
+            self._precondition("cg_r", "cg_u")  # the whole block: u is zero off the unknowns
+            self._hessian(sim, dt, "cg_u", "cg_w", unknowns_only=True)
+            gamma, delta, rr = self._cg_dots(sim)
             first = True
             gamma_old = alpha = math.nan  # the previous iteration's; not read on the first
             while rr > target:
@@ -667,27 +688,18 @@ class SemiImplicitIntegrator:
                     return iterations, True
                 alpha = gamma / curvature
                 with sim.timers("solve_vector"):
-                    if first:
-                        p[:] = u
-                        s[:] = w
-                    else:
-                        xpby(u, beta, p)
-                        xpby(w, beta, s)
-                    axpy(alpha, p, x)
-                    axpy(-alpha, s, r)
-                    self._precondition("cg_r", "cg_u")
-                self._hessian(sim, dt, "cg_u", "cg_w")
+                    cg_update(active, first, alpha, beta, u, w, p, s, x, r, inverse)
+                    self._constrain("cg_u")
+                self._hessian(sim, dt, "cg_u", "cg_w", unknowns_only=True)
                 gamma_old = gamma
-                gamma, delta, rr = self._dots(sim, [("cg_r", "cg_u"), ("cg_w", "cg_u"),
-                                                    ("cg_r", "cg_r")])
+                gamma, delta, rr = self._cg_dots(sim)
                 iterations += 1
                 first = False
             # The recursively updated residual met the tolerance: check b - H x.
-            self._hessian(sim, dt, "cg_x", "cg_w")
+            self._hessian(sim, dt, "cg_x", "cg_w", unknowns_only=True)
             with sim.timers("solve_vector"):
-                r[:] = b
-                axpy(-1.0, w, r)
-            (rr,) = self._dots(sim, [("cg_r", "cg_r")])
+                residual_active(active, b, w, r)
+            rr = self._cg_dots(sim)[2]
             if rr <= target:
                 return iterations, False
             if restarts >= CG_RESTARTS:
