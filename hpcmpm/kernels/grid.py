@@ -44,3 +44,32 @@ def update_velocity(mass, momentum, impulse, split_force, gravity, dt, velocity,
             velocity[n, 1] = 0.0
             if dim == 3:
                 velocity[n, 2] = 0.0
+
+
+# -- halo exchange of grid regions (`Domain._exchange_regions`) -------------------------------
+@njit(cache=True)
+def gather_nodes(field, index, buf, start):
+    """buf[start + k c + a] = field[index[k], a]: the listed nodes of an (N, c) field, in list
+    order, into a message buffer."""
+    c = field.shape[1]
+    for k in range(index.shape[0]):
+        n = index[k]
+        base = start + k * c
+        for a in range(c):
+            buf[base + a] = field[n, a]
+
+
+@njit(cache=True)
+def scatter_nodes(field, index, buf, start, add):
+    """The inverse of `gather_nodes`: field[index[k], a] += (or, without ``add``, =) the
+    buffer's values, in list order (a node listed twice gets its sums in that order)."""
+    c = field.shape[1]
+    for k in range(index.shape[0]):
+        n = index[k]
+        base = start + k * c
+        if add:
+            for a in range(c):
+                field[n, a] += buf[base + a]
+        else:
+            for a in range(c):
+                field[n, a] = buf[base + a]

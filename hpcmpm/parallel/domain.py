@@ -24,9 +24,9 @@ from .comm import Communicator, CountingComm
 from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers,
                             neighbour_ranks, owner_ranks, particle_cells, points_in_boxes,
                             recursive_bisection, wrap_periodic)
+from ..kernels.grid import gather_nodes, scatter_nodes
 from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
-                       pack_regions, pack_rows, region_slices, row_dtype, unpack_regions,
-                       unpack_rows)
+                       pack_rows, region_slices, row_dtype, unpack_rows)
 
 # The particle field of reference positions, which moves with x across periodic faces.
 FOLLOWS_WRAPS = "x0"
@@ -503,55 +503,69 @@ class Domain(Communicator):
             raise RuntimeError("call domain.grid_box(particles, order) before a grid exchange")
         return self._plan
 
-    def _region_boxes(self, regions, grid) -> tuple[list[tuple], int]:
-        """`region_slices` of a plan's region list in the current block and their node
-        count, remembered for the
-        plan and block: the semi-implicit solve exchanges ghosts three times per CG
-        iteration, where recomputing the slices cost a third of a small scene's solve
-        (measured: 2048-particle channel, 1 rank). Keyed by the region list's identity,
-        which the cached plan keeps alive, and the block's origin and shape."""
+    def _region_nodes(self, regions, grid) -> np.ndarray:
+        """The block's flat node indices of a plan's region list: region by region, each in
+        C order (`region_slices`), remembered for the plan and block. The semi-implicit
+        solve exchanges ghosts twice per CG iteration, where recomputing the slices cost a
+        third of a small scene's solve (measured: 2048-particle channel, 1 rank). Keyed by
+        the region list's identity, which the cached plan keeps alive, and the block's
+        origin and shape."""
         plan = self._plan
         if self._boxes_plan is not plan:
             self._boxes_plan = plan
             self._boxes_cache = {}
         key = (id(regions), tuple(grid.origin.tolist()), tuple(grid.shape))
-        entry = self._boxes_cache.get(key)
-        if entry is None:
+        index = self._boxes_cache.get(key)
+        if index is None:
             if len(self._boxes_cache) >= 64:  # a block that keeps moving: bound the memory
                 self._boxes_cache.clear()
-            boxes = [region_slices(lo, hi, grid.origin, grid.shape) for lo, hi in regions]
-            nodes = sum(math.prod(sl.stop - sl.start for sl in b) for b in boxes)
-            entry = self._boxes_cache[key] = (boxes, nodes)
-        return entry
+            flat = np.arange(math.prod(grid.shape), dtype=np.int64).reshape(grid.shape)
+            parts = [flat[region_slices(lo, hi, grid.origin, grid.shape)].reshape(-1)
+                     for lo, hi in regions]
+            index = np.concatenate(parts) if parts else np.empty(0, dtype=np.int64)
+            self._boxes_cache[key] = index
+        return index
 
     def _exchange_regions(self, grid, names, sends, recvs, tag: int, add: bool) -> None:
-        """One message per neighbour holding all its regions; a rank's regions on itself (a
-        periodic image of its own nodes) are copied, not sent. Everything is packed before
-        anything is unpacked, so a self copy reads the values from before the exchange."""
+        """One message per neighbour holding all its regions, field after field; a rank's
+        regions on itself (a periodic image of its own nodes) are copied, not sent.
+        Everything is packed before anything is unpacked, so a self copy reads the values
+        from before the exchange. Packing and unpacking are kernels over the regions' node
+        lists (`gather_nodes`, `scatter_nodes`): numpy slicing region by region cost more
+        than the exchange itself on a small block."""
         if not sends and not recvs:     # one rank, no periodic axis: nothing to exchange
             return
-        fields = [grid[name] for name in names]
-        # Values per node of all the fields (1 per scalar, d per vector).
-        per_node = sum(math.prod(f.shape[self.dim:]) for f in fields)
+        # Each field as (nodes, values per node): views of the contiguous block.
+        nodes = math.prod(grid.shape)
+        fields = [grid[name].reshape(nodes, math.prod(grid[name].shape[self.dim:]))
+                  for name in names]
+        per_node = sum(f.shape[1] for f in fields)
         requests, received, local = [], [], {}
         for r, regions in recvs:
-            boxes, nodes = self._region_boxes(regions, grid)
+            index = self._region_nodes(regions, grid)
             buf = None
             if r != self.rank:
-                buf = np.empty(nodes * per_node, dtype=np.float64)
+                buf = np.empty(index.size * per_node, dtype=np.float64)
                 requests.append(self.mpi.Irecv(buf, source=r, tag=tag))
-            received.append((r, boxes, buf))
+            received.append((r, index, buf))
         for r, regions in sends:
-            boxes, nodes = self._region_boxes(regions, grid)
-            buf = np.empty(nodes * per_node, dtype=np.float64)
-            pack_regions(fields, boxes, buf)
+            index = self._region_nodes(regions, grid)
+            buf = np.empty(index.size * per_node, dtype=np.float64)
+            start = 0
+            for f in fields:
+                gather_nodes(f, index, buf, start)
+                start += index.size * f.shape[1]
             if r == self.rank:
                 local[r] = buf
             else:
                 requests.append(self.mpi.Isend(buf, dest=r, tag=tag))
         MPI.Request.Waitall(requests)
-        for r, boxes, buf in received:  # in rank order: a deterministic summation order
-            unpack_regions(fields, boxes, local[r] if buf is None else buf, add)
+        for r, index, buf in received:  # in rank order: a deterministic summation order
+            buf = local[r] if buf is None else buf
+            start = 0
+            for f in fields:
+                scatter_nodes(f, index, buf, start, add)
+                start += index.size * f.shape[1]
 
     def sum_ghosts_to_owners(self, grid, *names: str) -> None:
         """After P2G: each rank sends its partial sums on nodes owned by others to the owners,

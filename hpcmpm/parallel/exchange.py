@@ -1,9 +1,10 @@
-"""Point-to-point building blocks: particle rows packed as bytes, grid regions packed as
-float64, and the non-blocking send/receive of one buffer per neighbour.
+"""Point-to-point building blocks: particle rows packed as bytes, the slices of a grid
+region, and the non-blocking send/receive of one buffer per neighbour.
 
-Packing is numpy slicing only (no Python loop over particles or nodes): a particle is one packed
-record holding every field side by side (a numpy structured dtype built from the fields), so the
-particles for one destination are one contiguous run of records and one message.
+Packing is numpy slicing only (no Python loop over particles): a particle is one packed record
+holding every field side by side (a numpy structured dtype built from the fields), so the
+particles for one destination are one contiguous run of records and one message. Grid regions
+travel as float64, packed by kernels over their node lists (`Domain._exchange_regions`).
 """
 
 from __future__ import annotations
@@ -77,29 +78,3 @@ def region_slices(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, shape) -> 
             f"the exchanged nodes [{lo.tolist()}, {hi.tolist()}): fit the block to "
             "domain.grid_box(particles, order) before the halo exchange")
     return tuple(slice(int(l - o), int(h - o)) for l, h, o in zip(lo, hi, origin))
-
-
-def pack_regions(fields: list[np.ndarray], boxes: list[tuple], buf: np.ndarray) -> None:
-    """Copy each region (a tuple of slices) of each field (scalar or vector) into ``buf``,
-    region by region, field by field within a region."""
-    start = 0
-    for slices in boxes:
-        for f in fields:
-            part = f[slices]
-            buf[start:start + part.size].reshape(part.shape)[...] = part
-            start += part.size
-
-
-def unpack_regions(fields: list[np.ndarray], boxes: list[tuple], buf: np.ndarray,
-                   add: bool) -> None:
-    """Add (``add``) or copy ``buf`` into the regions, in the order `pack_regions` wrote."""
-    start = 0
-    for slices in boxes:
-        for f in fields:
-            part = f[slices]
-            values = buf[start:start + part.size].reshape(part.shape)
-            if add:
-                part += values
-            else:
-                part[...] = values
-            start += part.size
