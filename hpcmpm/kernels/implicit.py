@@ -219,13 +219,15 @@ def scatter_diagonal_2d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
         l0, l1 = b0 - o0, b1 - o1
+        # K_p in scalars: read in the node loop, its loads were repeated per node (the
+        # stores to out may alias K for all the compiler knows).
+        ka00, ka01, ka11 = K[p, 0, 0, 0], K[p, 0, 0, 1] + K[p, 0, 1, 0], K[p, 0, 1, 1]
+        kb00, kb01, kb11 = K[p, 1, 0, 0], K[p, 1, 0, 1] + K[p, 1, 1, 0], K[p, 1, 1, 1]
         for i in range(s):
             for j in range(s):
                 g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
-                for a in range(2):
-                    out[l0 + i, l1 + j, a] += (K[p, a, 0, 0] * g0 * g0
-                                               + (K[p, a, 0, 1] + K[p, a, 1, 0]) * g0 * g1
-                                               + K[p, a, 1, 1] * g1 * g1)
+                out[l0 + i, l1 + j, 0] += ka00 * g0 * g0 + ka01 * g0 * g1 + ka11 * g1 * g1
+                out[l0 + i, l1 + j, 1] += kb00 * g0 * g0 + kb01 * g0 * g1 + kb11 * g1 * g1
 
 
 @njit(cache=True)
@@ -249,6 +251,11 @@ def scatter_diagonal_3d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
         w2, dw2 = weights(xi2, b2, order, inv_dx)
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
         l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        # K_p in scalars (see `scatter_diagonal_2d`): measured 2.6x a Hessian product's time
+        # with the loads in the node loop.
+        q0 = _diagonal_row(K, p, 0)
+        q1 = _diagonal_row(K, p, 1)
+        q2 = _diagonal_row(K, p, 2)
         for i in range(s):
             for j in range(s):
                 wij = w0[i] * w1[j]
@@ -256,13 +263,24 @@ def scatter_diagonal_3d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
                     g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
                                                     dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
-                    for a in range(3):
-                        out[n0, n1, n2, a] += (
-                            K[p, a, 0, 0] * g0 * g0 + K[p, a, 1, 1] * g1 * g1
-                            + K[p, a, 2, 2] * g2 * g2
-                            + (K[p, a, 0, 1] + K[p, a, 1, 0]) * g0 * g1
-                            + (K[p, a, 0, 2] + K[p, a, 2, 0]) * g0 * g2
-                            + (K[p, a, 1, 2] + K[p, a, 2, 1]) * g1 * g2)
+                    out[n0, n1, n2, 0] += _diagonal_term(q0, g0, g1, g2)
+                    out[n0, n1, n2, 1] += _diagonal_term(q1, g0, g1, g2)
+                    out[n0, n1, n2, 2] += _diagonal_term(q2, g0, g1, g2)
+
+
+@njit(cache=True, inline="always")
+def _diagonal_row(K, p, a):
+    """K_p[a]'s six distinct terms of g.K_p[a].g: the diagonal and the summed off-diagonal
+    pairs."""
+    return (K[p, a, 0, 0], K[p, a, 1, 1], K[p, a, 2, 2], K[p, a, 0, 1] + K[p, a, 1, 0],
+            K[p, a, 0, 2] + K[p, a, 2, 0], K[p, a, 1, 2] + K[p, a, 2, 1])
+
+
+@njit(cache=True, inline="always")
+def _diagonal_term(q, g0, g1, g2):
+    """g.K_p[a].g from `_diagonal_row`'s terms."""
+    return (q[0] * g0 * g0 + q[1] * g1 * g1 + q[2] * g2 * g2 + q[3] * g0 * g1
+            + q[4] * g0 * g2 + q[5] * g1 * g2)
 
 
 @njit(cache=True)
