@@ -574,7 +574,6 @@ def cg_update(active, first, alpha, beta, u, w, p, s, x, r, inverse):
     s <- w + beta s (p <- u, s <- w on the first), x <- x + alpha p, r <- r - alpha s, and
     the Jacobi step u <- inverse * r (its constraints: `constrain`)."""
     d = u.shape[1]
-    minus_alpha = -alpha
     for k in range(active.shape[0]):
         n = active[k]
         for a in range(d):
@@ -587,7 +586,7 @@ def cg_update(active, first, alpha, beta, u, w, p, s, x, r, inverse):
             p[n, a] = pa
             s[n, a] = sa
             x[n, a] += alpha * pa
-            r[n, a] += minus_alpha * sa
+            r[n, a] -= alpha * sa
             u[n, a] = inverse[n, a] * r[n, a]
 
 
@@ -598,7 +597,7 @@ def residual_active(active, b, w, r):
     for k in range(active.shape[0]):
         n = active[k]
         for a in range(d):
-            r[n, a] = b[n, a] + -1.0 * w[n, a]
+            r[n, a] = b[n, a] - w[n, a]
 
 
 @njit(cache=True)
