@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from mpi4py import MPI
 
+from ..kernels.grid import gather_nodes, scatter_nodes
 from .comm import Communicator, CountingComm
 from .decomposition import (BIG, cell_bounds, intersect, is_empty, leavers,
                             neighbour_ranks, owner_ranks, particle_cells, points_in_boxes,
                             recursive_bisection, wrap_periodic)
-from ..kernels.grid import gather_nodes, scatter_nodes
 from .exchange import (TAG_FILL, TAG_HALO, TAG_HALO_COUNT, TAG_MIGRATE, TAG_SUM, exchange_rows,
                        pack_rows, region_slices, row_dtype, unpack_rows)
 
