@@ -28,6 +28,9 @@ from .simulation import Simulation
 
 log = logging.getLogger(__name__)
 
+# How far the stability bound may fall below the run's largest step (`Runner.check_collapse`).
+DT_COLLAPSE = 1.0e-6
+
 
 class CheckpointedOnSignal(HpcmpmError):
     """The run received SIGTERM/SIGUSR1, wrote a checkpoint and stopped (resume with
@@ -93,6 +96,7 @@ class Runner:
         self.first_frame_written = first_frame_written
         self.dt_warned = False
         self.last_dt = 0.0
+        self.dt_peak = 0.0  # the largest step the stability bound has allowed so far
         every = sim.scene.output.every
         self.frame_every = every if every and every > 0 else options.end_time
 
@@ -101,6 +105,7 @@ class Runner:
         warning was given (so a restarted run does not repeat it)."""
         self.last_dt = float(meta.get("last_dt", self.last_dt))
         self.dt_warned = bool(meta.get("dt_warned", self.dt_warned))
+        self.dt_peak = float(meta.get("dt_peak", self.dt_peak))
 
     # -- schedule --------------------------------------------------------------------------
     def frame_time(self, k: int) -> float:
@@ -115,8 +120,12 @@ class Runner:
         return self.frame_time(math.floor(t / self.frame_every * (1.0 + 1e-12)) + 1)
 
     def choose_dt(self) -> float:
+        return self.step_within(self.sim.stable_dt())  # also the instability guard
+
+    def step_within(self, stable: float) -> float:
+        """The step to take under the stability bound ``stable`` (agreed by all ranks): the
+        fixed dt where the scene sets one, capped by max_dt, checked for a collapse."""
         sim = self.sim
-        stable = sim.stable_dt()  # also the instability guard, agreed by all ranks
         fixed = sim.scene.dt
         if fixed is not None:
             if fixed > stable and not self.dt_warned:
@@ -126,7 +135,33 @@ class Runner:
             stable = fixed
         if sim.scene.max_dt is not None:
             stable = min(stable, sim.scene.max_dt)
+        if fixed is None:
+            self.check_collapse(stable)
         return stable
+
+    def check_collapse(self, dt: float) -> None:
+        """Stops a run whose stability bound has fallen `DT_COLLAPSE` below the largest step
+        it allowed before: a wave or particle speed that grew a million-fold is a blow-up
+        with finite values, and the run would otherwise crawl on for ever. Measured (crash
+        fuzz, seed 405): taylor_cu_3d with eos.gamma0 = 9.2e18 went from dt = 7.7e-8 to
+        1.5e-22 in 300 steps and then took 65 000 steps without advancing t by 1e-11.
+        Legitimate runs stay far inside the factor: a shock raises copper's wave speed a
+        few times, and a semi-implicit step shrinks with the flow's speed, from at most
+        cfl dx / c (or sqrt(cfl dx / |g|)) at rest. The ranks agree on dt, so they raise
+        together."""
+        sim = self.sim
+        if math.isfinite(dt) and dt > self.dt_peak:
+            self.dt_peak = dt
+        if not dt < DT_COLLAPSE * self.dt_peak:
+            return
+        where = sim.fastest_signal()
+        raise InstabilityError(
+            f"the time step collapsed at step {sim.step_index}, t={sim.time:.6g}: the "
+            f"stability bound allows dt = {dt:.3g}, {self.dt_peak / dt:.3g} times below the "
+            f"largest step of this run ({self.dt_peak:.3g}); {where}. Hint: a material's "
+            f"state has left the range of its model (check the equation-of-state and "
+            f"hardening values of that material, e.g. eos.gamma0, and its moduli); a lower "
+            f"simulation.cfl would not help.")
 
     # -- loop ------------------------------------------------------------------------------
     def run(self) -> dict:
@@ -231,10 +266,15 @@ class Runner:
         from .io.checkpoint import write_checkpoint
 
         sim, domain = self.sim, self.domain
-        sim.assert_healthy()  # never a checkpoint of a blown-up state (a restart takes it)
+        # Never a checkpoint of a blown-up state (a restart takes it), nor of one whose time
+        # step has collapsed (`check_collapse`: the collapse shows in the state the step left;
+        # a fixed dt cannot collapse, and its bound is not warned about before it is taken).
+        speed = sim.assert_healthy()
+        if sim.scene.dt is None:
+            self.step_within(sim.integrator.stable_dt(sim, speed))
         meta = {
             "step": sim.step_index, "time": sim.time, "frame_index": self.frame_index,
-            "last_dt": self.last_dt, "dt_warned": self.dt_warned,
+            "last_dt": self.last_dt, "dt_warned": self.dt_warned, "dt_peak": self.dt_peak,
             "end_time": self.options.end_time, "scene_text": sim.scene.text,
             "scene_path": str(sim.scene.path), "boxes": domain.boxes.copy(),
             "n_ranks": domain.size, "hpcmpm_version": __version__,

@@ -623,6 +623,44 @@ class Simulation:
                         else m.max_wave_speed(self.material_fields(g)))
         return self.domain.max(local)
 
+    def fastest_signal(self) -> str:
+        """Where the step's bound comes from, for the message of a collapsed time step: the
+        fastest particle (id, material, |v|) and, where a model's wave speed depends on its
+        state, the particle with the largest wave speed, found by halving each material's
+        slice (2 log2 n calls of `max_wave_speed`, about 2n particle visits: an error path,
+        never a step's). Collective; the same text on every rank."""
+        p = self.particles
+        self.ensure_grouped()
+        mine: list[tuple[float, int, str, str]] = []
+        if p.n:
+            speeds = np.linalg.norm(p["v"][: p.n], axis=1)
+            i = int(np.argmax(speeds))
+            mine.append((float(speeds[i]), int(p["id"][i]),
+                         self.scene.materials[int(p["group"][i])].name, "speed |v|"))
+        if self._state_dependent_speed:
+            names = p.field_names()
+            for g, m in enumerate(self.materials):
+                lo, hi = self.group_slices[g]
+                if hi <= lo or type(m).max_wave_speed is Material.max_wave_speed:
+                    continue
+                while hi - lo > 1:
+                    mid = (lo + hi) // 2
+                    left = m.max_wave_speed({k: p[k][lo:mid] for k in names})
+                    right = m.max_wave_speed({k: p[k][mid:hi] for k in names})
+                    lo, hi = (lo, mid) if left >= right else (mid, hi)
+                c = m.max_wave_speed({k: p[k][lo:hi] for k in names})
+                mine.append((float(c), int(p["id"][lo]), self.scene.materials[g].name,
+                             "wave speed"))
+        found = [r for part in self.domain.allgather(mine) for r in part]
+        parts = []
+        for what in ("speed |v|", "wave speed"):
+            rows = [r for r in found if r[3] == what]
+            if rows:
+                value, pid, name, _ = max(rows, key=lambda r: (r[0], -r[1]))
+                parts.append(f"the largest {what} is {value:.3g} at particle id {pid} "
+                             f"(material {name!r})")
+        return "; ".join(parts) if parts else "no particle is left"
+
     def stable_dt(self) -> float:
         """The integrator's stable time step (explicit: ``cfl dx / (c_max + |v|_max)``),
         agreed by all ranks; raises `InstabilityError` on every rank when any particle is
@@ -655,17 +693,18 @@ class Simulation:
                                       lo, hi)
         return speed, int(nbad)
 
-    def assert_healthy(self) -> None:
+    def assert_healthy(self) -> float:
         """`check_health` without its other decisions (no stop agreement, no delivery of
         far particles): before a checkpoint is written. A step's blow-up is otherwise found
         at the next step's check, after that step's checkpoint: measured, disks_2d at 50x
         its CFL step with a checkpoint every step wrote ckpt_000000005.h5 with the broken
         state the run then stopped on, and a restart (a requeued job takes the newest)
-        failed on it at once."""
-        _, nbad = self._scan_health()
-        total_bad = int(self.domain.sum(nbad))
-        if total_bad:
-            self.raise_instability(nbad, total_bad)
+        failed on it at once. Returns the global largest particle speed."""
+        speed, nbad = self._scan_health()
+        maxes, sums = self.domain.max_then_sum([speed], [nbad])
+        if sums[0]:
+            self.raise_instability(nbad, int(sums[0]))
+        return float(maxes[0])
 
     def health_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Where a particle may be: the domain widened on every side by its largest extent.

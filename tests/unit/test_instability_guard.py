@@ -171,3 +171,62 @@ def test_a_material_update_that_divides_by_zero_stops_at_the_health_check():
         sim.check_health()
     message = str(info.value)
     assert f"ids {int(p['id'][row])}," in message and "divides by zero" in message
+
+
+def test_a_collapsing_time_step_stops_the_run_and_names_the_particle(tmp_path, capsys):
+    """A Grueneisen parameter of 9.2e18 (fuzzed) keeps every value finite, but the wave speed
+    runs away: taylor_cu_3d's step fell from 7.7e-8 to 1.5e-22 in 300 steps and the run then
+    crawled 65 000 steps without advancing t by 1e-11. It now stops at the collapse with
+    the particle of the largest wave speed, and writes no checkpoint of that state."""
+    from hpcmpm import cli
+
+    out = tmp_path / "out"
+    assert cli.main(["run", "inputs/cu_shock_column_2d.toml", "--out", str(out), "--quiet",
+                     "--checkpoint-every", "1",
+                     "--set", "materials.0.eos.gamma0=9223372036854775808"]) == 3
+    lines = [l for l in capsys.readouterr().err.splitlines() if l.startswith("hpcmpm:")]
+    assert len(lines) == 1, lines
+    message = lines[0]
+    assert message.startswith("hpcmpm: error: the time step collapsed at step "), message
+    assert re.search(r"largest wave speed is \S+ at particle id \d+ \(material 'copper'\)",
+                     message), message
+    assert "eos.gamma0" in message
+    step = int(re.search(r"collapsed at step (\d+)", message).group(1))
+    assert step < 50  # caught as it happens, not after a crawl
+    steps = [int(p.stem.split("_")[1]) for p in out.glob("ckpt_*.h5")]
+    assert max(steps, default=-1) < step
+    for frame in out.glob("frame_*.h5"):
+        with h5py.File(frame) as f:
+            assert np.all(np.isfinite(f["particles/x"][...])), frame
+
+
+def test_the_named_particle_is_the_one_of_the_largest_wave_speed():
+    """`Simulation.fastest_signal` halves each material's slice to find its largest wave
+    speed; checked against every particle's own speed, with the maximum placed at each end
+    and in the middle of the slice (the halving's edge cases) and with ties."""
+    from hpcmpm.runner import initial_particles, make_domain
+    from hpcmpm.scene import load_scene
+    from hpcmpm.simulation import Simulation
+
+    scene = load_scene("inputs/cu_shock_column_2d.toml")
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    p, material = sim.particles, sim.materials[0]
+    sim.ensure_grouped()
+    n = p.n
+    rng = np.random.default_rng(7)
+
+    def own_speed(i):
+        return material.max_wave_speed({k: p[k][i:i + 1] for k in p.field_names()})
+
+    for where in (0, n - 1, n // 2, n // 3):
+        p["J"][:n] = rng.uniform(0.95, 1.0, n)
+        p["J"][where] = 0.9  # compressed the most: the fastest wave
+        speeds = np.array([own_speed(i) for i in range(n)])
+        assert int(np.argmax(speeds)) == where
+        text = sim.fastest_signal()
+        expected = f"largest wave speed is {speeds[where]:.3g} at particle id {p['id'][where]}"
+        assert expected in text, (text, expected)
+    p["J"][:n] = 0.97  # all equal: the lowest id is named
+    text = sim.fastest_signal()
+    assert f"at particle id {int(np.min(p['id'][:n]))} (material 'copper')" in text.split(";")[1]
