@@ -201,6 +201,30 @@ def test_restart_restores_the_time_step_state(tmp_path, caplog, monkeypatch):
     assert not any("exceeds the CFL bound" in r.message for r in caplog.records)
 
 
+def test_restart_restores_the_largest_step(tmp_path, monkeypatch):
+    """`Runner.check_collapse` measures the step against the largest the run has taken; a
+    restart takes that from its checkpoint, so it decides as the run it continues would."""
+    from hpcmpm import runner
+
+    peaks = []
+    original = runner.Runner.run
+
+    def spy(self):
+        peaks.append(self.dt_peak)      # at the start: 0 for a new run, restored otherwise
+        result = original(self)
+        peaks.append(self.dt_peak)
+        return result
+
+    monkeypatch.setattr(runner.Runner, "run", spy)
+    out = tmp_path / "bar"
+    assert cli.main(["run", BAR, "--out", str(out), "--end-time", "0.105", "--quiet",
+                     "--set", "output.every=0.105"]) == 0
+    checkpoint = max(out.glob("ckpt_*.h5"))
+    assert cli.main(["restart", str(checkpoint), "--end-time", "0.21", "--quiet"]) == 0
+    assert peaks[0] == 0.0 and peaks[1] > 0.0
+    assert peaks[2] == peaks[1]
+
+
 def test_restart_reports_fields_it_drops_or_fills_in_one_line(short_run, caplog, monkeypatch,
                                                              tmp_path):
     import logging
