@@ -155,9 +155,10 @@ class Runner:
         if not dt < DT_COLLAPSE * self.dt_peak:
             return
         where = sim.fastest_signal()
+        ratio = self.dt_peak / dt if dt > 0.0 else math.inf  # a wave speed beyond the floats
         raise InstabilityError(
             f"the time step collapsed at step {sim.step_index}, t={sim.time:.6g}: the "
-            f"stability bound allows dt = {dt:.3g}, {self.dt_peak / dt:.3g} times below the "
+            f"stability bound allows dt = {dt:.3g}, {ratio:.3g} times below the "
             f"largest step of this run ({self.dt_peak:.3g}); {where}. Hint: a material's "
             f"state has left the range of its model (check the equation-of-state and "
             f"hardening values of that material, e.g. eos.gamma0, and its moduli); a lower "

@@ -238,6 +238,14 @@ def failure_messages(material_name: str, ids: np.ndarray, J_before: np.ndarray,
             continue
         zeta = 1.0 / J - 1.0
         x = 1.0 - (volumetric.s - 1.0) * zeta
+        if volumetric.kind == LOG_BULK or x >= MIN_DENOMINATOR:
+            # Not the singular compression: the pressure or energy left the floats (measured:
+            # a fuzzed eos.gamma0 of 2e300 on cu_shock_column_2d was reported as singular at
+            # 1 - (S - 1) zeta = 0.981).
+            out.append(f"material {material_name!r}: particle {int(ids[k])}: the pressure "
+                       f"or energy is no longer finite at J = {J:.6g} (check the "
+                       f"equation-of-state values, eos.gamma0 and eos.c0, and the density)")
+            continue
         out.append(f"material {material_name!r}: particle {int(ids[k])}: Mie-Gruneisen EOS "
                    f"singular: zeta = {zeta:.6g} (rho/rho0 = {1.0 + zeta:.6g}) gives "
                    f"1 - (S - 1) zeta = {x:.3g} < {MIN_DENOMINATOR:g}; the EOS holds for "

@@ -193,6 +193,23 @@ def test_singular_compression_is_reported(dim):
     assert math.isnan(mp.fields["J"][1]) and np.isfinite(mp.fields["J"][[0, 2]]).all()
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_pressure_beyond_the_floats_is_not_reported_as_singular(dim):
+    """A fuzzed Grueneisen parameter of 2e300: Gamma0 E overflows at a mild compression, far
+    from the singular one, and the message said "singular: ... 1 - (S - 1) zeta = 0.981 <
+    0.01", a condition that did not hold. It now names what happened."""
+    mp = shock_point(dim, 2, eos={**CU_EOS, "gamma0": 2e300})
+    mp.fields["id"][:] = [3, 4]
+    mp.fields["E"][:] = 1e10      # an energy already deposited (J/m^3): Gamma0 E = inf
+    L = np.zeros((2, dim, dim))
+    L[:, 0, 0] = (0.97 - 1.0) / 1e-6  # det(I + dt L) = 0.97: zeta = 0.031, x = 0.985
+    with pytest.raises(InstabilityError) as err:
+        mp.step(L, 1e-6)
+    message = str(err.value)
+    assert "particle 3: the pressure or energy is no longer finite at J = 0.97" in message
+    assert "singular" not in message and "eos.gamma0" in message
+
+
 def test_parameter_errors_are_one_line_each():
     jc = {"type": "johnson_cook", "A": 90e6, "B": 292e6, "n": 0.31, "C": 0.025}
     assert validate_params("j2", {"E": 1e9, "nu": 0.3, "hardening": jc, "eos": CU_EOS}) == []

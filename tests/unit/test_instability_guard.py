@@ -230,3 +230,24 @@ def test_the_named_particle_is_the_one_of_the_largest_wave_speed():
     p["J"][:n] = 0.97  # all equal: the lowest id is named
     text = sim.fastest_signal()
     assert f"at particle id {int(np.min(p['id'][:n]))} (material 'copper')" in text.split(";")[1]
+
+
+def test_a_bound_of_zero_after_positive_steps_is_a_collapse(tmp_path):
+    """taylor_cu_3d with eos.gamma0 = 2e300 (crash fuzz, seed 407): after one step the wave
+    speed is inf and the bound 0; the message's ratio divided by it (a ZeroDivisionError
+    traceback). It is an infinite collapse."""
+    from hpcmpm.errors import InstabilityError
+    from hpcmpm.runner import Runner, RunOptions, initial_particles, make_domain
+    from hpcmpm.scene import load_scene
+    from hpcmpm.simulation import Simulation
+
+    scene = load_scene("inputs/cu_shock_column_2d.toml")
+    sim = Simulation(scene, make_domain(scene))
+    initial_particles(sim)
+    runner = Runner(sim, None, RunOptions(out_dir=tmp_path, end_time=1e-6, quiet=True))
+    runner.check_collapse(1e-7)
+    assert runner.dt_peak == 1e-7
+    runner.check_collapse(2e-13)        # 5e5 times below: not yet a collapse
+    with pytest.raises(InstabilityError, match=r"dt = 0, inf times below the largest step "
+                                               r"of this run \(1e-07\)"):
+        runner.check_collapse(0.0)
