@@ -242,9 +242,11 @@ def failure_messages(material_name: str, ids: np.ndarray, J_before: np.ndarray,
             # Not the singular compression: the pressure or energy left the floats (measured:
             # a fuzzed eos.gamma0 of 2e300 on cu_shock_column_2d was reported as singular at
             # 1 - (S - 1) zeta = 0.981).
+            values = "E, nu" if volumetric.kind == LOG_BULK else \
+                "equation-of-state values (eos.gamma0, eos.c0)"
             out.append(f"material {material_name!r}: particle {int(ids[k])}: the pressure "
                        f"or energy is no longer finite at J = {J:.6g} (check the "
-                       f"equation-of-state values, eos.gamma0 and eos.c0, and the density)")
+                       f"material's {values} and density)")
             continue
         out.append(f"material {material_name!r}: particle {int(ids[k])}: Mie-Gruneisen EOS "
                    f"singular: zeta = {zeta:.6g} (rho/rho0 = {1.0 + zeta:.6g}) gives "
