@@ -4,7 +4,8 @@ The fused step is what a single-material, single-process, fixed-scene MLS-MPM co
 the same tools (numba, float64, quadratic B-splines, one thread): one function per scene kind
 with the dimension, the kernel order and the material fixed at compile time, the stress
 computed inside the P2G loop (no tau array), mass and momentum interleaved in one grid array,
-the stencil loops of constant length 3 (unrolled by LLVM), scalars only inside the particle
+the stencil loops of constant length 3 (unrolled by LLVM) over unsigned node indices (no
+negative-index wraparound: `hpcmpm.kernels.shape.node`), scalars only inside the particle
 loops, no allocation, no sort, no ghost exchange, a dense grid over the whole box. The 3D
 fixed corotated rotation is hpcmpm's own `polar3` (scaled Newton), so the ratio measures the
 cost of the framework around the physics, not a different polar decomposition; the 2D rotation
@@ -26,7 +27,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from numba import njit
+from numba import njit, uint64
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_common as bc  # noqa: E402
@@ -36,10 +37,10 @@ from hpcmpm.materials.decompositions import polar3  # noqa: E402
 
 @njit(cache=True, inline="always")
 def _weights(X):
-    """Quadratic B-spline base node and the three weights at grid coordinate X."""
+    """Quadratic B-spline base node (unsigned) and the three weights at grid coordinate X."""
     b = int(X - 0.5)
     f = X - b
-    return b, f, 0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2
+    return uint64(b), f, 0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2
 
 
 @njit(cache=True, inline="always")
@@ -82,10 +83,10 @@ def step_2d(x, v, C, J, F, grid, fluid, n_grid, dt, p_vol, p_mass, E, mu, lam, g
         a00, a01 = t00 + p_mass * C[p, 0, 0], t01 + p_mass * C[p, 0, 1]
         a10, a11 = t10 + p_mass * C[p, 1, 0], t11 + p_mass * C[p, 1, 1]
         mv0, mv1 = p_mass * v[p, 0], p_mass * v[p, 1]
-        for i in range(3):
+        for i in range(uint64(3)):
             d0 = (i - f0) * dx
             wi = _pick(i, wx0, wx1, wx2)
-            for j in range(3):
+            for j in range(uint64(3)):
                 d1 = (j - f1) * dx
                 w = wi * _pick(j, wy0, wy1, wy2)
                 grid[b0 + i, b1 + j, 0] += w * (mv0 + a00 * d0 + a01 * d1)
@@ -108,10 +109,10 @@ def step_2d(x, v, C, J, F, grid, fluid, n_grid, dt, p_vol, p_mass, E, mu, lam, g
         b0, f0, wx0, wx1, wx2 = _weights(x[p, 0] * inv_dx)
         b1, f1, wy0, wy1, wy2 = _weights(x[p, 1] * inv_dx)
         u0 = u1 = c00 = c01 = c10 = c11 = 0.0
-        for i in range(3):
+        for i in range(uint64(3)):
             d0 = (i - f0) * dx
             wi = _pick(i, wx0, wx1, wx2)
-            for j in range(3):
+            for j in range(uint64(3)):
                 d1 = (j - f1) * dx
                 w = wi * _pick(j, wy0, wy1, wy2)
                 g0, g1 = w * grid[b0 + i, b1 + j, 0], w * grid[b0 + i, b1 + j, 1]
@@ -177,13 +178,13 @@ def step_3d(x, v, C, J, F, grid, fluid, n_grid, dt, p_vol, p_mass, E, mu, lam, g
         a10, a11, a12 = t10 + p_mass * C[p, 1, 0], t11 + p_mass * C[p, 1, 1], t12 + p_mass * C[p, 1, 2]
         a20, a21, a22 = t20 + p_mass * C[p, 2, 0], t21 + p_mass * C[p, 2, 1], t22 + p_mass * C[p, 2, 2]
         mv0, mv1, mv2 = p_mass * v[p, 0], p_mass * v[p, 1], p_mass * v[p, 2]
-        for i in range(3):
+        for i in range(uint64(3)):
             d0 = (i - f0) * dx
             wi = _pick(i, wx0, wx1, wx2)
-            for j in range(3):
+            for j in range(uint64(3)):
                 d1 = (j - f1) * dx
                 wij = wi * _pick(j, wy0, wy1, wy2)
-                for kk in range(3):
+                for kk in range(uint64(3)):
                     d2 = (kk - f2) * dx
                     w = wij * _pick(kk, wz0, wz1, wz2)
                     n0, n1, n2 = b0 + i, b1 + j, b2 + kk
@@ -215,13 +216,13 @@ def step_3d(x, v, C, J, F, grid, fluid, n_grid, dt, p_vol, p_mass, E, mu, lam, g
         b2, f2, wz0, wz1, wz2 = _weights(x[p, 2] * inv_dx)
         u0 = u1 = u2 = 0.0
         c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
-        for i in range(3):
+        for i in range(uint64(3)):
             d0 = (i - f0) * dx
             wi = _pick(i, wx0, wx1, wx2)
-            for j in range(3):
+            for j in range(uint64(3)):
                 d1 = (j - f1) * dx
                 wij = wi * _pick(j, wy0, wy1, wy2)
-                for kk in range(3):
+                for kk in range(uint64(3)):
                     d2 = (kk - f2) * dx
                     w = wij * _pick(kk, wz0, wz1, wz2)
                     n0, n1, n2 = b0 + i, b1 + j, b2 + kk

@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .shape import stencil_base, weights
+from .shape import node, stencil_base, weights
 from .tangent import packed_index
 
 # Cyclic Jacobi sweeps for a tangent's eigen-decomposition (`project_tangents_psd`):
@@ -80,10 +80,10 @@ def contract_2d(x, u, mls, order, dinv_factor, dx, domain_lo, origin, L):
         w0, dw0 = weights(xi0, b0, order, inv_dx)
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
-        l0, l1 = b0 - o0, b1 - o1
+        l0, l1 = node(b0 - o0), node(b1 - o1)
         a00 = a01 = a10 = a11 = 0.0
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 u0, u1 = u[l0 + i, l1 + j, 0], u[l0 + i, l1 + j, 1]
                 a00 += u0 * g0
@@ -113,12 +113,12 @@ def contract_3d(x, u, mls, order, dinv_factor, dx, domain_lo, origin, L):
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         w2, dw2 = weights(xi2, b2, order, inv_dx)
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
-        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        l0, l1, l2 = node(b0 - o0), node(b1 - o1), node(b2 - o2)
         a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
                                                     dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
@@ -154,11 +154,11 @@ def scatter_tensor_2d(x, G, scale, mls, order, dinv_factor, dx, domain_lo, origi
         w0, dw0 = weights(xi0, b0, order, inv_dx)
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
-        l0, l1 = b0 - o0, b1 - o1
+        l0, l1 = node(b0 - o0), node(b1 - o1)
         t00, t01 = scale * G[p, 0, 0], scale * G[p, 0, 1]
         t10, t11 = scale * G[p, 1, 0], scale * G[p, 1, 1]
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 out[l0 + i, l1 + j, 0] += t00 * g0 + t01 * g1
                 out[l0 + i, l1 + j, 1] += t10 * g0 + t11 * g1
@@ -184,14 +184,14 @@ def scatter_tensor_3d(x, G, scale, mls, order, dinv_factor, dx, domain_lo, origi
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         w2, dw2 = weights(xi2, b2, order, inv_dx)
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
-        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        l0, l1, l2 = node(b0 - o0), node(b1 - o1), node(b2 - o2)
         t00, t01, t02 = scale * G[p, 0, 0], scale * G[p, 0, 1], scale * G[p, 0, 2]
         t10, t11, t12 = scale * G[p, 1, 0], scale * G[p, 1, 1], scale * G[p, 1, 2]
         t20, t21, t22 = scale * G[p, 2, 0], scale * G[p, 2, 1], scale * G[p, 2, 2]
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
                                                     dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
@@ -218,13 +218,13 @@ def scatter_diagonal_2d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
         w0, dw0 = weights(xi0, b0, order, inv_dx)
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
-        l0, l1 = b0 - o0, b1 - o1
+        l0, l1 = node(b0 - o0), node(b1 - o1)
         # K_p in scalars: read in the node loop, its loads were repeated per node (the
         # stores to out may alias K for all the compiler knows).
         ka00, ka01, ka11 = K[p, 0, 0, 0], K[p, 0, 0, 1] + K[p, 0, 1, 0], K[p, 0, 1, 1]
         kb00, kb01, kb11 = K[p, 1, 0, 0], K[p, 1, 0, 1] + K[p, 1, 1, 0], K[p, 1, 1, 1]
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 out[l0 + i, l1 + j, 0] += ka00 * g0 * g0 + ka01 * g0 * g1 + ka11 * g1 * g1
                 out[l0 + i, l1 + j, 1] += kb00 * g0 * g0 + kb01 * g0 * g1 + kb11 * g1 * g1
@@ -250,16 +250,16 @@ def scatter_diagonal_3d(x, K, mls, order, dinv_factor, dx, domain_lo, origin, ou
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         w2, dw2 = weights(xi2, b2, order, inv_dx)
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
-        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        l0, l1, l2 = node(b0 - o0), node(b1 - o1), node(b2 - o2)
         # K_p in scalars (see `scatter_diagonal_2d`): measured 2.6x a Hessian product's time
         # with the loads in the node loop.
         q0 = _diagonal_row(K, p, 0)
         q1 = _diagonal_row(K, p, 1)
         q2 = _diagonal_row(K, p, 2)
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
                                                     dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
@@ -304,10 +304,10 @@ def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
         w0, dw0 = weights(xi0, b0, order, inv_dx)
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
-        l0, l1 = b0 - o0, b1 - o1
+        l0, l1 = node(b0 - o0), node(b1 - o1)
         a0 = a1 = a2 = a3 = 0.0
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 u0, u1 = u[l0 + i, l1 + j, 0], u[l0 + i, l1 + j, 1]
                 a0 += u0 * g0
@@ -320,8 +320,8 @@ def hessian_product_2d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
         t1 = q[1] * a0 + q[4] * a1 + q[5] * a2 + q[6] * a3
         t2 = q[2] * a0 + q[5] * a1 + q[7] * a2 + q[8] * a3
         t3 = q[3] * a0 + q[6] * a1 + q[8] * a2 + q[9] * a3
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 g0, g1 = weight_gradient_2d(mls, i, j, w0, w1, dw0, dw1, dinv, e0, e1, dx)
                 out[l0 + i, l1 + j, 0] += t0 * g0 + t1 * g1
                 out[l0 + i, l1 + j, 1] += t2 * g0 + t3 * g1
@@ -347,12 +347,12 @@ def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         w2, dw2 = weights(xi2, b2, order, inv_dx)
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
-        l0, l1, l2 = b0 - o0, b1 - o1, b2 - o2
+        l0, l1, l2 = node(b0 - o0), node(b1 - o1), node(b2 - o2)
         a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = 0.0
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
                                                     dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k
@@ -376,10 +376,10 @@ def hessian_product_3d(x, T, u, mls, order, dinv_factor, dx, domain_lo, origin, 
         t6 = _row9(q, 6, a0, a1, a2, a3, a4, a5, a6, a7, a8)
         t7 = _row9(q, 7, a0, a1, a2, a3, a4, a5, a6, a7, a8)
         t8 = _row9(q, 8, a0, a1, a2, a3, a4, a5, a6, a7, a8)
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     g0, g1, g2 = weight_gradient_3d(mls, i, j, k, wij, w0, w1, w2, dw0, dw1, dw2,
                                                     dinv, e0, e1, e2, dx)
                     n0, n1, n2 = l0 + i, l1 + j, l2 + k

@@ -20,9 +20,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, uint64
 
 QUADRATIC, CUBIC = 2, 3
+
+# A stencil node's index into the rank's block as an unsigned integer: the offset
+# ``node(base - origin)`` and the stencil counters ``range(node(s))`` alike (numba types
+# uint64 + int64 as float64). Through a signed index numba adds a wraparound for negative
+# values (a compare and a select per axis of every access) unless it can prove the index
+# >= 0, which it cannot for ``base - origin + i``; the block holds every particle's whole
+# stencil, so that index never is negative and the wraparound is dead code. Measured on the
+# transfer and solve kernels: BENCHMARKS.md, "Unsigned stencil indices".
+node = uint64
 ORDERS = {"quadratic": QUADRATIC, "cubic": CUBIC}
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 from numba import njit
 
 from .deformation import advance_2d, advance_3d
-from .shape import stencil_base, stencil_weights_2d, stencil_weights_3d, weights
+from .shape import node, stencil_base, stencil_weights_2d, stencil_weights_3d, weights
 
 PIC, FLIP, APIC, MLS = 0, 1, 2, 3
 SCHEMES = {"pic": PIC, "flip": FLIP, "apic": APIC, "mls": MLS}
@@ -83,13 +83,13 @@ def scatter_2d(x, v, C, mass, vol0, tau, scheme, order, dinv_factor, dx, domain_
             a01 += s01
             a10 += s10
             a11 += s11
-        l0 = b0 - o0
-        l1 = b1 - o1
+        l0 = node(b0 - o0)
+        l1 = node(b1 - o1)
         # x_i - x_p of the stencil's first node; the others are whole cells further.
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
-        for i in range(s):
+        for i in range(node(s)):
             d0 = e0 + i * dx
-            for j in range(s):
+            for j in range(node(s)):
                 d1 = e1 + j * dx
                 wij = w0[i] * w1[j]
                 n0, n1 = l0 + i, l1 + j
@@ -163,17 +163,17 @@ def scatter_3d(x, v, C, mass, vol0, tau, scheme, order, dinv_factor, dx, domain_
             a20 += s20
             a21 += s21
             a22 += s22
-        l0 = b0 - o0
-        l1 = b1 - o1
-        l2 = b2 - o2
+        l0 = node(b0 - o0)
+        l1 = node(b1 - o1)
+        l2 = node(b2 - o2)
         # x_i - x_p of the stencil's first node; the others are whole cells further.
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
-        for i in range(s):
+        for i in range(node(s)):
             d0 = e0 + i * dx
-            for j in range(s):
+            for j in range(node(s)):
                 d1 = e1 + j * dx
                 wij = w0[i] * w1[j]
-                for kk in range(s):
+                for kk in range(node(s)):
                     d2 = e2 + kk * dx
                     wijk = wij * w2[kk]
                     n0, n1, n2 = l0 + i, l1 + j, l2 + kk
@@ -228,17 +228,17 @@ def gather_2d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt,
         b1 = stencil_base(xi1, order)
         w0, dw0 = weights(xi0, b0, order, inv_dx)
         w1, dw1 = weights(xi1, b1, order, inv_dx)
-        l0 = b0 - o0
-        l1 = b1 - o1
+        l0 = node(b0 - o0)
+        l1 = node(b1 - o1)
         # x_i - x_p of the stencil's first node; the others are whole cells further.
         e0, e1 = (b0 - xi0) * dx, (b1 - xi1) * dx
         u0 = u1 = 0.0
         du0 = du1 = 0.0
         b00 = b01 = b10 = b11 = 0.0
         g00 = g01 = g10 = g11 = 0.0
-        for i in range(s):
+        for i in range(node(s)):
             d0 = e0 + i * dx
-            for j in range(s):
+            for j in range(node(s)):
                 d1 = e1 + j * dx
                 wij = w0[i] * w1[j]
                 n0, n1 = l0 + i, l1 + j
@@ -304,21 +304,21 @@ def gather_3d(x, v, C, F, scheme, order, dinv_factor, dx, domain_lo, origin, dt,
         w0, dw0 = weights(xi0, b0, order, inv_dx)
         w1, dw1 = weights(xi1, b1, order, inv_dx)
         w2, dw2 = weights(xi2, b2, order, inv_dx)
-        l0 = b0 - o0
-        l1 = b1 - o1
-        l2 = b2 - o2
+        l0 = node(b0 - o0)
+        l1 = node(b1 - o1)
+        l2 = node(b2 - o2)
         # x_i - x_p of the stencil's first node; the others are whole cells further.
         e0, e1, e2 = (b0 - xi0) * dx, (b1 - xi1) * dx, (b2 - xi2) * dx
         u0 = u1 = u2 = 0.0
         du0 = du1 = du2 = 0.0
         c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
         g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
-        for i in range(s):
+        for i in range(node(s)):
             d0 = e0 + i * dx
-            for j in range(s):
+            for j in range(node(s)):
                 d1 = e1 + j * dx
                 wij = w0[i] * w1[j]
-                for kk in range(s):
+                for kk in range(node(s)):
                     d2 = e2 + kk * dx
                     wijk = wij * w2[kk]
                     n0, n1, n2 = l0 + i, l1 + j, l2 + kk

@@ -41,8 +41,12 @@ class Case:
 
 CASES = {
     # Semi-implicit (issue 9).
+    # Newton to 1e-12: at 1e-11 one rank count can stop Newton an iteration before another
+    # (equivalence fuzz seed 7: with the cubic kernel or PIC, v 1.07e-10 and 1.34e-10 apart
+    # on 1 and 2 ranks; within 1e-10 at 1e-12, and with the cubic kernel also with the
+    # Galilean stop at 1e-11).
     "channel_hb_2d": Case(0.01, 12, ("simulation.dx=0.03125", *SEMI,
-                                     "solver.newton_tolerance=1e-11")),
+                                     "solver.newton_tolerance=1e-12")),
     "channel_newtonian_2d": Case(0.01, 12, ("simulation.dx=0.03125", *SEMI)),
     # The column starts just above the floor: it lands and buckles within the run.
     "foam_coil_2d": Case(2e-3, 24, ("simulation.dx=0.015625", *SEMI,

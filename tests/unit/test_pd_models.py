@@ -142,3 +142,33 @@ def test_pmb_pair_terms_match_the_pair_force_written_out(dim):
     want = (body.model.c * s * b.weight * pts.vol[owner] * pts.vol[b.slot] / yl)[:, None] * Y
     got = bond_terms(body)
     np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_correspondence_pair_terms_match_the_force_state_written_out(dim):
+    """The correspondence terms, the zero-energy-mode control included, against the module
+    docstring's force evaluated with numpy from the model's A, F and active: term =
+    [w (A_p + A_q) X + (G w/|X|)(a_p (Y - F_p X) + a_q (Y - F_q X))] V_p V_q at a
+    non-affine state. The stabilization's share is checked apart (its terms alone against
+    the numpy ones), since a slip there (a halved G) moves the total terms by less than the
+    stress does. rtol 1e-12: the same quantities rounded and summed in another order."""
+    body = random_body(dim, "correspondence", seed=5)
+    body.compute_forces()
+    b, pts, m = body.pts.bonds, body.pts, body.model
+    owner = np.repeat(np.arange(b.n), b.counts())
+    q = b.slot
+    X = pts.x0[q] - pts.x0[owner]
+    Y = pts.x[q] - pts.x[owner]
+    wv = (b.weight * pts.vol[owner] * pts.vol[q])[:, None]
+    stress = wv * np.einsum("bij,bj->bi", m.A[owner] + m.A[q], X)
+    z = lambda k: m.active[k][:, None] * (Y - np.einsum("bij,bj->bi", m.F[k], X))  # noqa: E731
+    control = (m.G / np.linalg.norm(X, axis=1))[:, None] * wv * (z(owner) + z(q))
+    want = stress + control
+    got = bond_terms(body)
+    scale = np.abs(want).max()
+    assert m.G > 0.0 and np.abs(control).max() > 1e-3 * scale   # the control acts here
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * scale)
+    # The control alone: the same terms with A = 0.
+    m.A[:] = 0.0
+    np.testing.assert_allclose(bond_terms(body), control, rtol=1e-12,
+                               atol=1e-12 * np.abs(control).max())
