@@ -97,15 +97,16 @@ def evaluate(xi: np.ndarray, order: int, inv_dx: float):
 @njit(cache=True, inline="always")
 def stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin):
     """(w0, w1, l0, l1): the weights along each axis of particle p (row of x) and its first
-    stencil node in block-local indices (``origin`` the block's first node), for the
-    transfers that need no gradient."""
+    stencil node in block-local indices (``origin`` the block's first node; unsigned,
+    `node`: loop over the stencil with ``range(node(s))``), for the transfers that need no
+    gradient."""
     xi0 = (x[p, 0] - domain_lo[0]) * inv_dx
     xi1 = (x[p, 1] - domain_lo[1]) * inv_dx
     b0 = stencil_base(xi0, order)
     b1 = stencil_base(xi1, order)
     w0, _ = weights(xi0, b0, order, inv_dx)
     w1, _ = weights(xi1, b1, order, inv_dx)
-    return w0, w1, b0 - origin[0], b1 - origin[1]
+    return w0, w1, node(b0 - origin[0]), node(b1 - origin[1])
 
 
 @njit(cache=True, inline="always")
@@ -120,4 +121,4 @@ def stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin):
     w0, _ = weights(xi0, b0, order, inv_dx)
     w1, _ = weights(xi1, b1, order, inv_dx)
     w2, _ = weights(xi2, b2, order, inv_dx)
-    return w0, w1, w2, b0 - origin[0], b1 - origin[1], b2 - origin[2]
+    return w0, w1, w2, node(b0 - origin[0]), node(b1 - origin[1]), node(b2 - origin[2])

@@ -398,8 +398,8 @@ def scatter_forces_2d(x, f, order, dx, domain_lo, origin, dt, grid_momentum):
     for p in range(x.shape[0]):
         w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
         f0, f1 = dt * f[p, 0], dt * f[p, 1]
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
                 grid_momentum[l0 + i, l1 + j, 0] += wij * f0
                 grid_momentum[l0 + i, l1 + j, 1] += wij * f1
@@ -414,10 +414,10 @@ def scatter_forces_3d(x, f, order, dx, domain_lo, origin, dt, grid_momentum):
     for p in range(x.shape[0]):
         w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
         f0, f1, f2 = dt * f[p, 0], dt * f[p, 1], dt * f[p, 2]
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     w = wij * w2[k]
                     grid_momentum[l0 + i, l1 + j, l2 + k, 0] += w * f0
                     grid_momentum[l0 + i, l1 + j, l2 + k, 1] += w * f1

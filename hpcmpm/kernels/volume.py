@@ -28,7 +28,7 @@ import math
 
 from numba import njit
 
-from .shape import stencil_weights_2d, stencil_weights_3d
+from .shape import node, stencil_weights_2d, stencil_weights_3d
 
 
 @njit(cache=True)
@@ -44,8 +44,8 @@ def scatter_volume_2d(x, vol0, J_old, J_new, order, dx, domain_lo, origin, grid_
         w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
         vo = vol0[p] * J_old[p]
         vn = vol0[p] * J_new[p]
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 w = w0[i] * w1[j]
                 grid_old[l0 + i, l1 + j] += w * vo
                 grid_new[l0 + i, l1 + j] += w * vn
@@ -63,10 +63,10 @@ def scatter_volume_3d(x, vol0, J_old, J_new, order, dx, domain_lo, origin, grid_
         w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
         vo = vol0[p] * J_old[p]
         vn = vol0[p] * J_new[p]
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     w = wij * w2[k]
                     grid_old[l0 + i, l1 + j, l2 + k] += w * vo
                     grid_new[l0 + i, l1 + j, l2 + k] += w * vn
@@ -92,8 +92,8 @@ def gather_volume_2d(x, J_old, order, dx, domain_lo, origin, grid_r, J):
             continue
         w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
         acc = 0.0
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 acc += w0[i] * w1[j] * grid_r[l0 + i, l1 + j]
         J[p] = J_old[p] * acc
 
@@ -109,10 +109,10 @@ def gather_volume_3d(x, J_old, order, dx, domain_lo, origin, grid_r, J):
             continue
         w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
         acc = 0.0
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j]
-                for k in range(s):
+                for k in range(node(s)):
                     acc += wij * w2[k] * grid_r[l0 + i, l1 + j, l2 + k]
         J[p] = J_old[p] * acc
 

@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from ..kernels.deformation import volume_ratio
-from ..kernels.shape import stencil_weights_2d, stencil_weights_3d
+from ..kernels.shape import node, stencil_weights_2d, stencil_weights_3d
 from ..materials.decompositions import jacobi_angle
 
 ENERGIES = ("stress_squared", "tensile_energy")
@@ -191,8 +191,8 @@ def energy_history_2d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, or
         if me == 0.0:
             continue
         w0, w1, l0, l1 = stencil_weights_2d(x, p, order, inv_dx, domain_lo, origin)
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 grid_energy[l0 + i, l1 + j] += w0[i] * w1[j] * me
 
 
@@ -209,10 +209,10 @@ def energy_history_3d(x, mass, tau, F, EE, code, E, nu, order, dx, domain_lo, or
         if me == 0.0:
             continue
         w0, w1, w2, l0, l1, l2 = stencil_weights_3d(x, p, order, inv_dx, domain_lo, origin)
-        for i in range(s):
-            for j in range(s):
+        for i in range(node(s)):
+            for j in range(node(s)):
                 wij = w0[i] * w1[j] * me
-                for kk in range(s):
+                for kk in range(node(s)):
                     grid_energy[l0 + i, l1 + j, l2 + kk] += wij * w2[kk]
 
 
