@@ -149,9 +149,9 @@ def test_correspondence_pair_terms_match_the_force_state_written_out(dim):
     """The correspondence terms, the zero-energy-mode control included, against the module
     docstring's force evaluated with numpy from the model's A, F and active: term =
     [w (A_p + A_q) X + (G w/|X|)(a_p (Y - F_p X) + a_q (Y - F_q X))] V_p V_q at a
-    non-affine state. The stabilization's share is checked apart (its terms alone against
-    the numpy ones), since a slip there (a halved G) moves the total terms by less than the
-    stress does. rtol 1e-12: the same quantities rounded and summed in another order."""
+    non-affine state, then the control's terms alone (A = 0), so that a slip in either part
+    is seen by itself (a halved G was caught before only by a NaN in a stability test).
+    rtol 1e-12: the same quantities rounded and summed in another order."""
     body = random_body(dim, "correspondence", seed=5)
     body.compute_forces()
     b, pts, m = body.pts.bonds, body.pts, body.model
