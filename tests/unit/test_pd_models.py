@@ -42,6 +42,14 @@ def bond_terms(body):
     return out
 
 
+def bond_geometry(body):
+    """(owner, X, Y) of every half-bond of ``body``: its owner's row and the reference and
+    current bond vectors, for the numpy statements of the force states below."""
+    b, pts = body.pts.bonds, body.pts
+    owner = np.repeat(np.arange(b.n), b.counts())
+    return owner, pts.x0[b.slot] - pts.x0[owner], pts.x[b.slot] - pts.x[owner]
+
+
 @pytest.mark.parametrize("name", ["pmb", "lps", "correspondence"])
 @pytest.mark.parametrize("dim", [2, 3])
 def test_pair_terms_cancel_bitwise(dim, name):
@@ -107,10 +115,8 @@ def test_lps_pair_terms_match_the_force_state_written_out(dim):
     body = random_body(dim, "lps", seed=3)
     body.compute_forces()
     b, pts, model = body.pts.bonds, body.pts, body.model
-    owner = np.repeat(np.arange(b.n), b.counts())
+    owner, X, Y = bond_geometry(body)
     q = b.slot
-    X = pts.x0[q] - pts.x0[owner]
-    Y = pts.x[q] - pts.x[owner]
     xl, yl = np.linalg.norm(X, axis=1), np.linalg.norm(Y, axis=1)
     e = yl - xl
     wv = b.weight * pts.vol[q]
@@ -134,9 +140,7 @@ def test_pmb_pair_terms_match_the_pair_force_written_out(dim):
     body = random_body(dim, "pmb", seed=4)
     body.compute_forces()
     b, pts = body.pts.bonds, body.pts
-    owner = np.repeat(np.arange(b.n), b.counts())
-    X = pts.x0[b.slot] - pts.x0[owner]
-    Y = pts.x[b.slot] - pts.x[owner]
+    owner, X, Y = bond_geometry(body)
     xl, yl = np.linalg.norm(X, axis=1), np.linalg.norm(Y, axis=1)
     s = (yl - xl) / xl
     want = (body.model.c * s * b.weight * pts.vol[owner] * pts.vol[b.slot] / yl)[:, None] * Y
@@ -155,10 +159,8 @@ def test_correspondence_pair_terms_match_the_force_state_written_out(dim):
     body = random_body(dim, "correspondence", seed=5)
     body.compute_forces()
     b, pts, m = body.pts.bonds, body.pts, body.model
-    owner = np.repeat(np.arange(b.n), b.counts())
+    owner, X, Y = bond_geometry(body)
     q = b.slot
-    X = pts.x0[q] - pts.x0[owner]
-    Y = pts.x[q] - pts.x[owner]
     wv = (b.weight * pts.vol[owner] * pts.vol[q])[:, None]
     stress = wv * np.einsum("bij,bj->bi", m.A[owner] + m.A[q], X)
     z = lambda k: m.active[k][:, None] * (Y - np.einsum("bij,bj->bi", m.F[k], X))  # noqa: E731
