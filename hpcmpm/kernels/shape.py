@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit, uint64
 
 QUADRATIC, CUBIC = 2, 3
+ORDERS = {"quadratic": QUADRATIC, "cubic": CUBIC}
 
 # A stencil node's index into the rank's block as an unsigned integer: the offset
 # ``node(base - origin)`` and the stencil counters ``range(node(s))`` alike (numba types
@@ -32,7 +33,6 @@ QUADRATIC, CUBIC = 2, 3
 # stencil, so that index never is negative and the wraparound is dead code. Measured on the
 # transfer and solve kernels: BENCHMARKS.md, "Unsigned stencil indices".
 node = uint64
-ORDERS = {"quadratic": QUADRATIC, "cubic": CUBIC}
 
 
 def inverse_inertia_factor(order: int) -> float:
