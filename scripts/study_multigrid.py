@@ -23,8 +23,10 @@ For one linearized solve of a scene (1 rank, the first solve of the step after `
    each smoothed, nu times before and after (a symmetric preconditioner, as CG needs), by
    damped Jacobi, Chebyshev of degree nu (geometric only) or symmetric Gauss-Seidel (serial:
    a reference, not what a distributed code would use);
-   and a two-level balancing preconditioner (Jacobi plus an exact coarse correction, no
-   smoothing sweeps).
+   a two-level balancing preconditioner (Jacobi plus an exact coarse correction, no
+   smoothing sweeps); and additive Schwarz on overlapping 2^d-node patches (no coarse level).
+3. The lowest eigenvalues of D^-1 A (at most 30 000 unknowns), and how much of each of
+   those modes lies on nodes that particles barely reach (mass below 1e-3 of the largest).
 
 "work" is the cost of the solve in fine products: iterations times (1, the CG's product, +
 the preconditioner's products, each level's weighted by its share of the non-zeros; the
@@ -77,6 +79,7 @@ CHEBYSHEV_STRETCH = 1.1
 # The lowest eigenvalues need a sparse LU of A: beyond this many unknowns (3D, 375
 # non-zeros a row) its fill outgrows the memory of a laptop.
 SPECTRUM_LIMIT = 30000
+LIGHT_NODE = 1e-3  # a node's mass below this fraction of the largest: "light" (`analyse`)
 COARSEST = 2000  # unknowns at which the V-cycle solves directly (`--coarsest`)
 
 
@@ -198,6 +201,7 @@ def assemble(sim, integ, dt):
     P.eliminate_zeros()
     symmetry = float(abs(A - A.T).max() / abs(A).max())
     return {"A": A, "P": P, "index": index, "shape": shape, "assembly_check": check,
+            "node_mass": integ._mass[active].copy(),
             "symmetry": symmetry, "assembly_s": seconds, "unknowns": n * d}
 
 
@@ -433,6 +437,32 @@ def two_level_balancing(A, b, target, P, index, d):
             "work_per_iteration": per, "work": it * per}
 
 
+def additive_schwarz(A, b, target, index, d):
+    """Additive Schwarz on overlapping node patches: every node with its neighbours at +0/+1
+    on each axis (2^d nodes, 2^d d unknowns), each patch's block of A inverted exactly, the
+    corrections summed (symmetric positive definite, as CG needs). No coarse level. Its
+    application is one sparse product with the sum of the inverted blocks, weighted by its
+    non-zeros; building the blocks (the entries of A between neighbouring nodes, from the
+    particles once per linearization, and 2^d d-sized inversions) is not counted."""
+    lookup = {tuple(ix): k for k, ix in enumerate(index)}
+    corners = np.stack(np.meshgrid(*[(0, 1)] * d, indexing="ij"), -1).reshape(-1, d)
+    rows, cols, vals = [], [], []
+    A = A.tocsr()
+    for ix in index:
+        nodes = [lookup.get(tuple(ix + corner)) for corner in corners]
+        dofs = np.array([q * d + a for q in nodes if q is not None for a in range(d)])
+        block = np.linalg.inv(A[dofs][:, dofs].toarray())
+        rows.append(np.repeat(dofs, dofs.size))
+        cols.append(np.tile(dofs, dofs.size))
+        vals.append(block.ravel())
+    M = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=A.shape)
+    it = pcg(A, b, target, lambda r: M @ r)
+    per = 1 + M.nnz / A.nnz
+    return {"iterations": it, "levels": [A.shape[0]], "work_per_iteration": per,
+            "work": it * per}
+
+
 def analyse(c, scene, time_, nus, coarsest=COARSEST, spectrum=True):
     """The preconditioners on one captured system (see the module docstring)."""
     A, b, target = c["A"], c["b"], c["target"]
@@ -446,10 +476,20 @@ def analyse(c, scene, time_, nus, coarsest=COARSEST, spectrum=True):
     if spectrum and A.shape[0] <= SPECTRUM_LIMIT:
         scale = sp.diags(np.sqrt(inverse))
         scaled = (scale @ A @ scale).tocsc()
-        low = np.sort(spla.eigsh(scaled, k=min(12, A.shape[0] - 2), sigma=0, which="LM",
-                                 return_eigenvectors=False))
+        low, vectors = spla.eigsh(scaled, k=min(12, A.shape[0] - 2), sigma=0, which="LM")
+        order = np.argsort(low)
+        low, vectors = low[order], vectors[:, order]
         row["jacobi_scaled_lowest"] = low.tolist()
         row["jacobi_scaled_condition"] = spectral_radius(A, A.diagonal()) / low[0]
+        # Where the lowest modes live: their share (in the D-weighted norm the eigenvectors
+        # are normalised in) on the nodes that particles barely reach, mass below
+        # LIGHT_NODE of the largest node mass.
+        if "node_mass" in c:
+            light = np.repeat(c["node_mass"] < LIGHT_NODE * c["node_mass"].max(), d)
+            row["light_nodes"] = int(light.sum() // d)
+            row["lowest_modes_share_on_light_nodes"] = \
+                np.sum(vectors[light] ** 2, axis=0).tolist()
+    row["additive_schwarz"] = additive_schwarz(A, b, target, c["index"], d)
     row["two_level_balancing"] = two_level_balancing(A, b, target, c["P"], c["index"], d)
     B = rigid_modes(c["index"], d, c["P"])
     for smoother in ("jacobi", "chebyshev", "gauss_seidel"):
