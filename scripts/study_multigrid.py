@@ -257,8 +257,7 @@ def cycle_work(nnz, nu, smoother):
     """Fine products per V-cycle from each level's non-zeros (the coarsest solved directly,
     not counted): damped Jacobi 2 nu sweeps a level (the first from zero needs no product,
     the residual before restriction one), Chebyshev of degree nu the same; symmetric
-    Gauss-Seidel 2 nu sweeps of two
-    products' cost each, and the residual."""
+    Gauss-Seidel 2 nu sweeps of two products' cost each, and the residual."""
     per_level = 4 * nu + 1 if smoother == "gauss_seidel" else 2 * nu
     return sum(per_level * z / nnz[0] for z in nnz[:-1])
 
