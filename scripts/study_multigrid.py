@@ -47,7 +47,6 @@ import argparse
 import json
 import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -165,7 +164,6 @@ def assemble(sim, integ, dt):
     rows, cols, vals = [], [], []
     half = period // 2
     upper = np.array(shape)
-    start = time.perf_counter()
     for c in range(period ** d):
         members = np.flatnonzero(colour == c)
         if members.size == 0:
@@ -189,7 +187,6 @@ def assemble(sim, integ, dt):
                 vals.append(value[keep])
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                       shape=(n * d, n * d))
-    seconds = time.perf_counter() - start
     rng = np.random.default_rng(1)
     u = rng.standard_normal((n, d))
     exact = product(u).reshape(-1)
@@ -205,9 +202,9 @@ def assemble(sim, integ, dt):
     P = sp.csr_matrix((pval.reshape(-1), (prow, pcol.reshape(-1))), shape=(n * d, n * d))
     P.eliminate_zeros()
     symmetry = float(abs(A - A.T).max() / abs(A).max())
-    return {"A": A, "P": P, "index": index, "shape": shape, "assembly_check": check,
+    return {"A": A, "P": P, "index": index, "assembly_check": check,
             "node_mass": integ._mass[active].copy(),
-            "symmetry": symmetry, "assembly_s": seconds, "unknowns": n * d}
+            "symmetry": symmetry, "unknowns": n * d}
 
 
 # -- multigrid -----------------------------------------------------------------------------
@@ -262,53 +259,56 @@ def cycle_work(nnz, nu, smoother):
     return sum(per_level * z / nnz[0] for z in nnz[:-1])
 
 
+def coarsen(A, P, index, d):
+    """One Galerkin level: (A_c = R A R^T, R^T, the coarse nodes' indices) on the lattice of
+    twice the spacing. ``P``: the fine level's projection (None below the finest), so that no
+    correction goes along a constrained direction."""
+    T, coarse_index = interpolation(index, d)
+    prolong = sp.kron(T, sp.identity(d), format="csr")
+    if P is not None:
+        prolong = (P @ prolong).tocsr()
+    # Whole coarse nodes (the next level's prolongation is node-major, d per node); a
+    # component whose every fine dof was constrained away gets a decoupled 1 on the diagonal
+    # (its restricted residual is zero, so is its correction).
+    used = np.asarray(abs(prolong).sum(axis=0)).reshape(-1) > 0
+    nodes = np.flatnonzero(used.reshape(-1, d).any(axis=1))
+    keep = (nodes[:, None] * d + np.arange(d)).reshape(-1)
+    prolong = prolong[:, keep].tocsr()
+    coarse = (prolong.T @ A @ prolong).tolil()
+    empty = np.flatnonzero(coarse.diagonal() == 0.0)
+    coarse[empty, empty] = 1.0
+    return coarse.tocsr(), prolong, coarse_index[nodes]
+
+
 class Multigrid:
     """A V-cycle on Galerkin coarse operators (see the module docstring)."""
 
     def __init__(self, A, P, index, d, nu, coarsest=COARSEST, smoother="jacobi"):
         self.nu, self.smoother = nu, smoother
-        self.levels = []  # (A, damped inverse diagonal, prolongation to the level above)
-        self.jacobi = []  # (1 / diag(A), rho(D^-1 A)) per level, for the Chebyshev smoother
+        # Per level: (A, 1 / diag(A), rho(D^-1 A) for the Jacobi and Chebyshev smoothers,
+        # the prolongation from this level to the one above).
+        self.levels = []
         prolong = None
-        level_index = index
         while True:
-            diagonal = A.diagonal()
-            top = spectral_radius(A, diagonal)
-            self.levels.append((A, OMEGA / (diagonal * top), prolong))
-            self.jacobi.append((1.0 / diagonal, top))
-            if A.shape[0] <= coarsest or level_index.shape[0] <= 1:
+            inverse = 1.0 / A.diagonal()
+            top = None if smoother == "gauss_seidel" else spectral_radius(A, A.diagonal())
+            self.levels.append((A, inverse, top, prolong))
+            if A.shape[0] <= coarsest or index.shape[0] <= 1:
                 break
-            T, coarse_index = interpolation(level_index, d)
-            prolong = sp.kron(T, sp.identity(d), format="csr")
-            if P is not None:
-                prolong = (P @ prolong).tocsr()  # no correction along a constrained direction
-                P = None
-            # Whole coarse nodes (the next level's prolongation is node-major, d per node);
-            # a component whose every fine dof was constrained away gets a decoupled 1 on
-            # the diagonal (its restricted residual is zero, so is its correction).
-            used = np.asarray(abs(prolong).sum(axis=0)).reshape(-1) > 0
-            nodes = np.flatnonzero(used.reshape(-1, d).any(axis=1))
-            keep = (nodes[:, None] * d + np.arange(d)).reshape(-1)
-            prolong = prolong[:, keep].tocsr()
-            A = (prolong.T @ A @ prolong).tolil()
-            empty = np.flatnonzero(A.diagonal() == 0.0)
-            A[empty, empty] = 1.0
-            A = A.tocsr()
-            level_index = coarse_index[nodes]
+            A, prolong, index = coarsen(A, P, index, d)
+            P = None
             if A.shape[0] == self.levels[-1][0].shape[0]:
                 break
         self.coarsest = spla.splu(self.levels[-1][0].tocsc())
-        self.sizes = [lv[0].shape[0] for lv in self.levels]
-        nnz = [lv[0].nnz for lv in self.levels]
-        self.work = cycle_work(nnz, nu, smoother)
+        self.sizes = [level[0].shape[0] for level in self.levels]
+        self.work = cycle_work([level[0].nnz for level in self.levels], nu, smoother)
 
     def _chebyshev(self, level, x, r):
         """x += p(D^-1 A) D^-1 (r - A x), p the Chebyshev polynomial of degree nu on
         [rho / CHEBYSHEV_RATIO, CHEBYSHEV_STRETCH rho] of D^-1 A (Saad, Iterative Methods,
         2nd ed., Alg. 12.1, with the Jacobi preconditioner; Adams et al. 2003's smoothing
         interval). x = None: from zero, one product fewer."""
-        A, _, _ = self.levels[level]
-        inverse, top = self.jacobi[level]
+        A, inverse, top, _ = self.levels[level]
         high = CHEBYSHEV_STRETCH * top
         low = top / CHEBYSHEV_RATIO
         theta, delta = 0.5 * (high + low), 0.5 * (high - low)
@@ -325,32 +325,32 @@ class Multigrid:
             rho = rho_new
         return x
 
-    def apply(self, r, level=0):
-        A, inverse, _ = self.levels[level]
-        if level == len(self.levels) - 1:
-            return self.coarsest.solve(r)
+    def _smooth(self, level, x, r):
+        """nu sweeps of the smoother on A x = r from x (None: from zero)."""
+        A, inverse, top, _ = self.levels[level]
         if self.smoother == "chebyshev":
-            x = self._chebyshev(level, None, r)
-            residual = r - A @ x
-            prolong = self.levels[level + 1][2]
-            x += prolong @ self.apply(prolong.T @ residual, level + 1)
             return self._chebyshev(level, x, r)
         if self.smoother == "gauss_seidel":
-            x = np.zeros_like(r)
+            x = np.zeros_like(r) if x is None else x
             gauss_seidel(A, x, r, iterations=self.nu, sweep="symmetric")
-        else:
-            x = inverse * r
-            for _ in range(self.nu - 1):
-                x += inverse * (r - A @ x)
-        residual = r - A @ x
-        prolong = self.levels[level + 1][2]
-        x += prolong @ self.apply(prolong.T @ residual, level + 1)
-        if self.smoother == "gauss_seidel":
-            gauss_seidel(A, x, r, iterations=self.nu, sweep="symmetric")
-        else:
-            for _ in range(self.nu):
-                x += inverse * (r - A @ x)
+            return x
+        damped = (OMEGA / top) * inverse
+        sweeps = self.nu
+        if x is None:  # the first sweep from zero needs no product
+            x = damped * r
+            sweeps -= 1
+        for _ in range(sweeps):
+            x += damped * (r - A @ x)
         return x
+
+    def apply(self, r, level=0):
+        if level == len(self.levels) - 1:
+            return self.coarsest.solve(r)
+        A = self.levels[level][0]
+        x = self._smooth(level, None, r)
+        prolong = self.levels[level + 1][3]
+        x += prolong @ self.apply(prolong.T @ (r - A @ x), level + 1)
+        return self._smooth(level, x, r)
 
 
 def pcg(A, b, target, precondition, limit=20000):
@@ -395,10 +395,9 @@ def rigid_modes(index, d, P):
 
 
 def smoothed_aggregation(A, B, nu, smoother):
-    """pyamg's smoothed aggregation with the rigid modes, damped Jacobi smoothing as above
-    (what a distributed code would use), nu sweeps each side. Returns (apply, sizes, work
-    per V-cycle in fine products: 2 nu sweeps on each level but the coarsest, weighted by
-    its non-zeros)."""
+    """pyamg's smoothed aggregation with the rigid modes, smoothed as the geometric cycle is
+    (damped Jacobi with the same weight, or symmetric Gauss-Seidel), nu sweeps each side.
+    Returns (apply, sizes, work per V-cycle in fine products, `cycle_work`)."""
     ml = pyamg.smoothed_aggregation_solver(A.tocsr(), B=B, max_coarse=500)
     if smoother == "gauss_seidel":
         smoothers = ("gauss_seidel", {"sweep": "symmetric", "iterations": nu})
@@ -422,10 +421,9 @@ def two_level_balancing(A, b, target, P, index, d):
     smoothing sweeps). Per iteration: the CG's fine product, and A Q r and R A y through the
     fine-by-coarse matrix A R^T (built once per linearization), two sparse products weighted
     by its non-zeros; the coarse solves and building A R^T are not counted."""
-    mg = Multigrid(A, P, index, d, 1, coarsest=A.shape[0] - 1)
-    if len(mg.levels) < 2:
+    if index.shape[0] <= 1:
         return None
-    coarse, prolong = mg.levels[1][0], mg.levels[1][2]
+    coarse, prolong, _ = coarsen(A, P, index, d)
     solve = spla.splu(coarse.tocsc()).solve
     inverse = 1.0 / A.diagonal()
     AR = (A @ prolong).tocsr()
