@@ -147,9 +147,9 @@ def test_study_multigrid_smoke(tmp_path):
     different orders, and a residual within round-off of the stop can fall either side of
     it), and geometric multigrid with each smoother, smoothed aggregation with Gauss-Seidel,
     the two-level and the patch (additive Schwarz) preconditioners converge in fewer
-    iterations than Jacobi (a wrong prolongation or smoother
-    would not; smoothed aggregation with damped Jacobi does not beat it at this size, 6
-    coarse unknowns, nor does it on the scenes: BENCHMARKS.md)."""
+    iterations than Jacobi (a wrong prolongation or smoother would not; smoothed
+    aggregation with damped Jacobi does not beat it at this size, 6 coarse unknowns, nor
+    does it on the scenes: BENCHMARKS.md)."""
     out = tmp_path / "multigrid.json"
     run_script("study_multigrid.py", "--smoke", "--json", str(out))
     (row,) = json.loads(out.read_text())
